@@ -1,0 +1,229 @@
+"""Configuration: load ``config.yaml``, apply overrides, validate.
+
+The configuration is a nested dictionary (as Snakemake sees it). :func:`load_config` reads a
+YAML file, applies ``KEY=VALUE`` overrides with dotted keys, and validates the result with
+:func:`validate_config`: first against ``workflow/schemas/config.schema.yaml`` (JSON Schema),
+then against cross-key physical rules that a schema cannot express. Every violation raises
+:class:`ConfigError` whose message names the key and the rule broken.
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import yaml
+
+__all__ = [
+    "ConfigError",
+    "SCHEMA_PATH",
+    "DEFAULT_CONFIG_PATH",
+    "load_config",
+    "validate_config",
+    "apply_overrides",
+    "config_hash",
+    "get",
+]
+
+PACKAGE_ROOT = Path(__file__).resolve().parent.parent
+SCHEMA_PATH = PACKAGE_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+DEFAULT_CONFIG_PATH = PACKAGE_ROOT / "config.yaml"
+
+
+class ConfigError(ValueError):
+    """A configuration value breaks a rule; the message names the key and the rule."""
+
+
+def _load_schema() -> dict:
+    with open(SCHEMA_PATH, encoding="utf-8") as fh:
+        return yaml.safe_load(fh)
+
+
+def _path_str(path: Iterable[Any]) -> str:
+    parts = [str(p) for p in path]
+    return ".".join(parts) if parts else "<top level>"
+
+
+def _schema_errors(cfg: Mapping) -> list[str]:
+    import jsonschema
+
+    validator_cls = jsonschema.validators.validator_for(_load_schema())
+    validator = validator_cls(_load_schema())
+    msgs = []
+    for err in sorted(validator.iter_errors(cfg), key=lambda e: list(e.absolute_path)):
+        key = _path_str(err.absolute_path)
+        if err.validator == "required":
+            # name the missing key itself, not its parent
+            missing = err.message.split("'")[1] if "'" in err.message else err.message
+            key = _path_str(list(err.absolute_path) + [missing])
+            msgs.append(f"config key '{key}': missing (required)")
+        elif err.validator == "additionalProperties":
+            msgs.append(f"config key '{key}': {err.message} (unknown key: check the spelling)")
+        else:
+            msgs.append(f"config key '{key}': {err.message}")
+    return msgs
+
+
+def _physical_errors(cfg: Mapping) -> list[str]:
+    msgs = []
+    t1 = cfg["table1"]
+    if t1["backup_clearance_m"] >= t1["airgap_m"]:
+        msgs.append(
+            "config key 'table1.backup_clearance_m': must be smaller than table1.airgap_m "
+            f"(got {t1['backup_clearance_m']} >= {t1['airgap_m']}); otherwise the rotor touches "
+            "the stator before the backup bearing"
+        )
+    fs = cfg["controller"]["fs_hz"]
+    fpwm = t1["f_pwm_hz"]
+    ratio = fs / fpwm
+    if abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1:
+        msgs.append(
+            f"config key 'controller.fs_hz': {fs} Hz is an integer multiple ({round(ratio)}x) of "
+            f"table1.f_pwm_hz = {fpwm} Hz; DCM self-sensing would sample the ripple at fixed "
+            "phases and consistently miss its peak (paper section 3)"
+        )
+    if fs <= 2 * fpwm:
+        msgs.append(
+            f"config key 'controller.fs_hz': must exceed twice table1.f_pwm_hz ({2 * fpwm} Hz) so "
+            "that the ripple peak can be detected (paper section 3)"
+        )
+    radii = ["r_journal_inner_m", "r_journal_outer_m", "r_pole_m", "r_backiron_inner_m", "r_stator_outer_m"]
+    for a, b in zip(radii, radii[1:]):
+        if not t1[a] < t1[b]:
+            msgs.append(f"config key 'table1.{b}': must be larger than table1.{a} (got {t1[b]} <= {t1[a]})")
+    if t1["r_pole_m"] - t1["r_journal_outer_m"] <= 0:
+        pass  # covered above
+    mag = cfg["magnetics"]
+    amp = cfg["amplifier"]
+    if amp["duty_min"] >= amp["duty_max"]:
+        msgs.append("config key 'amplifier.duty_min': must be smaller than amplifier.duty_max")
+    ss = cfg["selfsensing"]
+    if ss["lowpass_hz"] >= fs / 2:
+        msgs.append(f"config key 'selfsensing.lowpass_hz': must be below the Nyquist frequency {fs / 2} Hz")
+    if cfg["controller"]["derivative_filter_hz"] >= fs / 2:
+        msgs.append(f"config key 'controller.derivative_filter_hz': must be below the Nyquist frequency {fs / 2} Hz")
+    if ss["calibrate"] and len(set(ss["calibration_positions_m"])) < 2:
+        msgs.append("config key 'selfsensing.calibration_positions_m': needs two distinct positions")
+    for p in ss["calibration_positions_m"]:
+        if abs(p) >= t1["backup_clearance_m"]:
+            msgs.append(
+                f"config key 'selfsensing.calibration_positions_m': {p} m lies outside the backup "
+                f"bearing clearance {t1['backup_clearance_m']} m"
+            )
+    for name, exp in cfg["experiments"].items():
+        exc = exp["excitation"]
+        if exc["kind"] != "none" and "point" not in exc:
+            msgs.append(f"config key 'experiments.{name}.excitation.point': missing (required for kind '{exc['kind']}')")
+        if exp["duration_s"] is None and exc["kind"] != "multisine":
+            msgs.append(f"config key 'experiments.{name}.duration_s': null is only allowed for multisine excitation")
+    del mag
+    return msgs
+
+
+def validate_config(cfg: Mapping) -> None:
+    """Validate a configuration dictionary; raise :class:`ConfigError` listing every violation.
+
+    Parameters
+    ----------
+    cfg : mapping
+        The configuration (as loaded from ``config.yaml``).
+
+    Raises
+    ------
+    ConfigError
+        With one line per violation, each naming the dotted key and the rule it breaks.
+    """
+    msgs = _schema_errors(cfg)
+    if not msgs:
+        msgs = _physical_errors(cfg)
+    if msgs:
+        raise ConfigError("invalid configuration:\n  " + "\n  ".join(msgs))
+
+
+def _parse_value(text: str) -> Any:
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def apply_overrides(cfg: Mapping, overrides: Iterable[str] | Mapping[str, Any] | None) -> dict:
+    """Return a copy of ``cfg`` with dotted-key overrides applied.
+
+    ``overrides`` is either an iterable of ``"a.b.c=VALUE"`` strings (VALUE parsed as YAML) or a
+    mapping of dotted keys to values. An override of a key that does not exist is an error,
+    so that a typo cannot silently leave the configuration unchanged.
+    """
+    out = copy.deepcopy(dict(cfg))
+    if not overrides:
+        return out
+    items = overrides.items() if isinstance(overrides, Mapping) else (_split_override(s) for s in overrides)
+    for key, value in items:
+        parts = key.split(".")
+        node = out
+        for i, part in enumerate(parts[:-1]):
+            if not isinstance(node, dict) or part not in node:
+                raise ConfigError(f"config key '{'.'.join(parts[: i + 1])}': does not exist (override '{key}')")
+            node = node[part]
+        if not isinstance(node, dict) or parts[-1] not in node:
+            raise ConfigError(f"config key '{key}': does not exist (override '{key}')")
+        node[parts[-1]] = value
+    return out
+
+
+def _split_override(text: str) -> tuple[str, Any]:
+    if "=" not in text:
+        raise ConfigError(f"override '{text}': expected KEY=VALUE")
+    key, value = text.split("=", 1)
+    return key.strip(), _parse_value(value.strip())
+
+
+def load_config(path: str | Path | None = None, overrides=None) -> dict:
+    """Load, override and validate a configuration file (default: the repository's ``config.yaml``)."""
+    path = Path(path) if path is not None else DEFAULT_CONFIG_PATH
+    if not path.exists():
+        raise ConfigError(f"config file '{path}': not found")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            cfg = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"config file '{path}': not valid YAML ({exc})") from None
+    if not isinstance(cfg, dict):
+        raise ConfigError(f"config file '{path}': top level must be a mapping")
+    cfg = apply_overrides(cfg, overrides)
+    validate_config(cfg)
+    return cfg
+
+
+def config_hash(obj: Any) -> str:
+    """SHA-256 (first 16 hex digits) of a JSON-serialisable object, key order independent."""
+    blob = json.dumps(obj, sort_keys=True, default=_json_default).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def _json_default(o):
+    if isinstance(o, float) and math.isnan(o):
+        return "nan"
+    try:
+        import numpy as np
+
+        if isinstance(o, np.generic):
+            return o.item()
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+    except ImportError:  # pragma: no cover
+        pass
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def get(cfg: Mapping, dotted: str) -> Any:
+    """Return ``cfg['a']['b']`` for ``dotted == 'a.b'``; a missing key raises ConfigError."""
+    node: Any = cfg
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            raise ConfigError(f"config key '{dotted}': missing")
+        node = node[part]
+    return node
