@@ -11,27 +11,37 @@ stable 6x6 state-space model.
 """
 from __future__ import annotations
 
-import argparse
-import time
+import os
 
-import numpy as np
+# Small matrices: BLAS threads only add synchronisation (and, on a loaded 2-core machine,
+# spin-waiting) for both libraries.  Set before numpy / slycot load OpenBLAS; override by
+# exporting OPENBLAS_NUM_THREADS yourself.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from ssamb.mu import mussv
-from ssamb.robust import frequency_response_matrix, mu_frequency_response
+import argparse  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from ssamb.mu import mussv  # noqa: E402
+from ssamb.robust import frequency_response_matrix, mu_frequency_response  # noqa: E402
 
 
 def _crandn(rng, n):
     return rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n))
 
 
-def _time_per_call(fn, items, repeat=3):
-    best = np.inf
-    out = None
+def _interleaved_times(fns, items, repeat=7):
+    """Per-call time of each function, timed in alternation on the same items (so that
+    load fluctuations of a shared machine hit all of them alike); the median over repeats."""
+    times = [[] for _ in fns]
+    outs = [None] * len(fns)
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = [fn(x) for x in items]
-        best = min(best, (time.perf_counter() - t0) / len(items))
-    return best, out
+        for k, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            outs[k] = [fn(x) for x in items]
+            times[k].append((time.perf_counter() - t0) / len(items))
+    return [float(np.median(t)) for t in times], outs
 
 
 def bench_case(name, blk, nblock, itype, n, count, seed):
@@ -41,8 +51,9 @@ def bench_case(name, blk, nblock, itype, n, count, seed):
     mats = [_crandn(rng, n) for _ in range(count)]
     mussv(mats[0], blk)  # JIT compile / load the cache outside the timing
     ab13md(mats[0], np.array(nblock), np.array(itype))
-    t_mu, res = _time_per_call(lambda M: mussv(M, blk), mats)
-    t_ab, ref = _time_per_call(lambda M: ab13md(M, np.array(nblock), np.array(itype))[0], mats)
+    (t_mu, t_ab), (res, ref) = _interleaved_times(
+        [lambda M: mussv(M, blk), lambda M: ab13md(M, np.array(nblock), np.array(itype))[0]],
+        mats)
     up = np.array([r.upper for r in res])
     lo = np.array([r.lower for r in res])
     ref = np.array(ref)
@@ -82,6 +93,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=200, help="random matrices per case")
     args = ap.parse_args()
+    print(f"OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}, median of 7 interleaved repeats")
     ta = bench_case("a", [[2, 2]] * 3, [2, 2, 2], [2, 2, 2], 6, args.n, seed=1)
     tb = bench_case("b", [[1, 1]] * 4, [1, 1, 1, 1], [2, 2, 2, 2], 4, args.n, seed=2)
     ts = bench_sweep()

@@ -92,7 +92,7 @@ References
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from itertools import product
 
 import numba as nb
@@ -234,7 +234,7 @@ def _check_matrix(M, lay: _Layout) -> np.ndarray:
     if not np.issubdtype(M.dtype, np.number):
         raise ValueError("M must be numeric")
     M = np.ascontiguousarray(M, dtype=np.complex128)
-    if not np.all(np.isfinite(M)):
+    if not np.isfinite(M).all():
         raise ValueError("M contains NaN or inf")
     if M.shape != (lay.p, lay.q):
         raise ValueError(
@@ -322,7 +322,7 @@ def _osborne(M, lay, nsweep=10):
         BE = B2 * np.exp(2.0 * (s[:, None] - s[None, :]))
         step = 0.125 * np.log((BE.sum(axis=0) + floor) / (BE.sum(axis=1) + floor))
         s = np.clip(s + step, -30.0, 30.0)
-        if np.max(np.abs(step)) < 1e-2:
+        if np.abs(step).max() < 1e-2:
             break
     return s - s.mean()
 
@@ -751,15 +751,18 @@ def _power_c(M, kinds, offs, sizes, b0, l0, maxit, tol):
 
 
 def _build_Q(kinds, offs, sizes, a, l, n):
-    """Structured Q with sigma_max(Q) <= 1 aligning a to b = Q a (rank-one full blocks)."""
+    """Structured Q aligning a to b = Q a (rank-one full blocks, unimodular scalars) and its
+    norm σ̄(Q) = max_k ||Q_k|| (||b_k|| / ||a_k|| for a rank-one full block, 1 for scalars)."""
     b = _align(kinds, offs, sizes, a, l, True)
     Q = np.zeros((n, n), dtype=np.complex128)
+    qn = 0.0
     for k, o, r in zip(kinds, offs, sizes):
         sl = slice(o, o + r)
         if k == _FULL:
-            na2 = float(np.vdot(a[sl], a[sl]).real)
+            na2 = np.vdot(a[sl], a[sl]).real
             if na2 > 1e-300:
                 Q[sl, sl] = np.outer(b[sl], a[sl].conj()) / na2
+                qn = max(qn, float(np.sqrt(np.vdot(b[sl], b[sl]).real / na2)))
         else:
             cc = np.vdot(l[sl], a[sl])
             if k == _CSCALAR:
@@ -767,7 +770,8 @@ def _build_Q(kinds, offs, sizes, a, l, n):
             else:
                 q = 1.0 if cc.real >= 0.0 else -1.0
             Q[sl, sl] = q * np.eye(r)
-    return Q
+            qn = max(qn, 1.0)
+    return Q, qn
 
 
 def _eigvals(A):
@@ -800,8 +804,8 @@ class MuResult:
     blk : ndarray
         The normalised ``(nblk, 2)`` block structure.
     det_residual : float
-        :math:`\\sigma_{\\min}(I - M\\Delta) / (1 + \\bar\\sigma(M\\Delta))` of the returned
-        ``delta`` (0 when ``delta`` is None).
+        :math:`\\sigma_{\\min}(I - M\\Delta) / (1 + \\sigma_{\\max}(I - M\\Delta))` of the
+        returned ``delta`` (0 when ``delta`` is None); candidates above 1e-8 are rejected.
     lower_method : str
         Which procedure produced the lower bound.
     n_evals : int
@@ -818,7 +822,6 @@ class MuResult:
     det_residual: float = 0.0
     lower_method: str = ""
     n_evals: int = 0
-    extra: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def bounds(self) -> tuple[float, float]:
@@ -866,7 +869,8 @@ def _det_residual(M: np.ndarray, delta: np.ndarray) -> float:
 
 
 def perturbation_residual(M, delta) -> float:
-    """Relative singularity of ``I - M @ delta``: ``σ_min(I - MΔ) / (1 + σ̄(MΔ))``."""
+    """Relative singularity of ``I - M @ delta``: ``σ_min(I - MΔ) / (1 + σ_max(I - MΔ))``
+    (0 for an exactly singular matrix)."""
     return _det_residual(np.asarray(M, dtype=np.complex128), np.asarray(delta, dtype=np.complex128))
 
 
@@ -910,7 +914,7 @@ def _verify_candidate(M, lay, Dint):
     for b, o, sz in zip(lay.blocks, lay.offs, lay.sizes):
         sub = Dint[o:o + sz, o:o + sz]
         if b.kind == _FULL:
-            nrm = max(nrm, float(np.sqrt(np.sum(sub.real ** 2 + sub.imag ** 2))))
+            nrm = max(nrm, float(np.linalg.norm(sub)))  # Frobenius
         else:
             nrm = max(nrm, float(abs(sub[0, 0])))
     if not np.isfinite(nrm) or nrm <= 0.0:
@@ -947,21 +951,10 @@ class _LowerSearch:
 def _eig_candidates(QM, real_only: bool):
     lam = _eigvals(QM)
     if real_only:
-        scale = max(1.0, float(np.max(np.abs(lam)))) if lam.size else 1.0
+        scale = max(1.0, float(np.abs(lam).max())) if lam.size else 1.0
         lam = lam[np.abs(lam.imag) <= 1e-11 * scale].real.astype(np.complex128)
     lam = lam[np.abs(lam) > 0]
     return lam[np.argsort(-np.abs(lam))]
-
-
-def _q_norm(kinds, offs, sizes, Q):
-    nrm = 0.0
-    for k, o, r in zip(kinds, offs, sizes):
-        blkq = Q[o:o + r, o:o + r]
-        if k == _FULL:
-            nrm = max(nrm, float(np.sqrt(np.sum(np.abs(blkq) ** 2))))  # rank one: 2-norm = F-norm
-        else:
-            nrm = max(nrm, float(abs(blkq[0, 0])))
-    return nrm
 
 
 def _offer_Q(search: _LowerSearch, Q, qn, Mi, has_real, method):
@@ -986,8 +979,7 @@ def _complex_lower(Mc, kinds, offs, sizes, starts, maxit=200, tol=1e-10):
         beta, a, b, l = _power_c(Mc, kinds, offs, sizes, b0, l0, maxit, tol)
         if beta == 0.0:
             continue
-        Q = _build_Q(kinds, offs, sizes, a, l, n)
-        qn = _q_norm(kinds, offs, sizes, Q)
+        Q, qn = _build_Q(kinds, offs, sizes, a, l, n)
         lams = _eig_candidates(Q @ Mc, False)
         if lams.size and qn > 0 and abs(lams[0]) / qn > best[0]:
             best = (float(abs(lams[0]) / qn), Q / lams[0])
@@ -1062,8 +1054,8 @@ def mussv(
     Mi = _embed(M, lay)
     n = lay.n
     kinds, offs, sizes = lay.kinds, lay.offs, lay.sizes
-    has_real = bool(np.any(kinds == _REAL))
-    all_real = bool(np.all(kinds == _REAL))
+    has_real = bool((kinds == _REAL).any())
+    all_real = bool((kinds == _REAL).all())
     smax = float(np.linalg.norm(Mi, 2)) if n else 0.0
 
     tpos, tfull, gpos, npar = _param_layout(lay)
@@ -1115,7 +1107,7 @@ def _lower_bound(search, Mi, Mn, lay, xb, tpos, tfull, has_real, all_real, upper
     T, Ti = _build_T(xb, offs, sizes, tpos, tfull, n)
 
     def gen_starts():  # lazily: most problems stop after the first start
-        if np.all(np.isfinite(T)) and np.all(np.isfinite(Ti)):
+        if np.isfinite(T).all() and np.isfinite(Ti).all():
             U, S, Vh = np.linalg.svd(T @ Mn @ Ti)
             v = Vh[0].conj()
             yield Ti @ v, T.conj().T @ v
@@ -1138,15 +1130,15 @@ def _lower_bound(search, Mi, Mn, lay, xb, tpos, tfull, has_real, all_real, upper
         starts.append((b0, l0))
         beta, a, b, l = _power_c(Mn, kinds, offs, sizes, b0, l0, 300, 1e-11)
         if beta > 0.0:
-            Q = _build_Q(kinds, offs, sizes, a, l, n)
-            _offer_Q(search, Q, _q_norm(kinds, offs, sizes, Q), Mi, has_real, "power iteration")
+            Q, qn = _build_Q(kinds, offs, sizes, a, l, n)
+            _offer_Q(search, Q, qn, Mi, has_real, "power iteration")
             if has_real:
                 real_dirs.append(np.array([Q[offs[i], offs[i]].real for i in ridx_blocks]))
         if has_real:
             # complex relaxation of the real blocks: its phases suggest real directions
             beta, a, b, l = _power_c(Mn, kinds_c, offs, sizes, b0, l0, 300, 1e-11)
             if beta > 0.0:
-                Qc = _build_Q(kinds_c, offs, sizes, a, l, n)
+                Qc, _ = _build_Q(kinds_c, offs, sizes, a, l, n)
                 ph = np.array([Qc[offs[i], offs[i]] for i in ridx_blocks])
                 real_dirs.append(np.where(ph.real >= 0, 1.0, -1.0))
                 if np.max(np.abs(ph.real)) > 0:
@@ -1260,7 +1252,7 @@ def _assemble(M, lay, x, tpos, tfull, gpos, c, upper, delta, lower, method, nev,
     """Map the internal scalings to the user's D_L (p×p), D_R (q×q), G (q×p)."""
     n = lay.n
     T, Ti = _build_T(x, lay.offs, lay.sizes, tpos, tfull, n)
-    if not (np.all(np.isfinite(T)) and np.all(np.isfinite(Ti))):
+    if not (np.isfinite(T).all() and np.isfinite(Ti).all()):
         T = np.eye(n, dtype=np.complex128)
     # normalise the common factor (D is defined up to a positive scalar; X = D^H D and G
     # scale together): |det| of the last block's T becomes 1
@@ -1271,7 +1263,7 @@ def _assemble(M, lay, x, tpos, tfull, gpos, c, upper, delta, lower, method, nev,
     T = T / f
     # internal G is the LMI variable for Mn = c M: divide by c (and by f^2 with X)
     Gfull = (_build_G(x, lay.offs, lay.sizes, lay.kinds, gpos, n) / (c * f * f)
-             if np.any(lay.kinds == _REAL) else np.zeros((n, n), dtype=np.complex128))
+             if (lay.kinds == _REAL).any() else np.zeros((n, n), dtype=np.complex128))
     if lay.square:
         return MuResult(
             upper=float(upper), lower=float(lower), delta=delta, d_left=T, d_right=T.copy(),
