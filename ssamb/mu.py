@@ -81,6 +81,17 @@ For purely real structures μ is discontinuous in M and the lower bound can hone
 (e.g. a complex 1×1 ``M`` with a real scalar block has μ = 0 exactly, and the upper bound
 then also reaches 0).
 
+Implementation notes
+--------------------
+The inner loops (smoothed eigenvalue objective and its gradient, BFGS, power iteration) are
+numba kernels compiled with ``cache=True``: the first call in a fresh checkout spends a
+one-time JIT compilation (15–40 s on a 2-core machine, more under load); later processes load
+the cache from ``ssamb/__pycache__``.  The engine works on a square, zero-padded copy of ``M``
+(a non-square ``[r, c]`` block becomes ``max(r, c)`` square, which leaves μ and both bounds
+unchanged) and maps scalings and Δ back to the user's shapes.  For small matrices, OpenBLAS
+threads only cost time (they spin on a loaded machine): for long sweeps set
+``OPENBLAS_NUM_THREADS=1`` in the environment of the process.
+
 References
 ----------
 * A. Packard, J. Doyle, "The complex structured singular value", Automatica 29(1), 1993.
