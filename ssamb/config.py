@@ -140,7 +140,7 @@ def validate_config(cfg: Mapping) -> None:
     if not msgs:
         msgs = _physical_errors(cfg)
     if msgs:
-        raise ConfigError("invalid configuration:\n  " + "\n  ".join(msgs))
+        raise ConfigError("; ".join(msgs))
 
 
 def _parse_value(text: str) -> Any:

@@ -1,0 +1,92 @@
+"""Command line: ``python -m ssamb <command> ...``.
+
+Commands (binding interface, ARCHITECTURE.md):
+
+* ``simulate --experiment NAME [--config FILE] [--set KEY=VALUE ...] --out FILE.npz``
+* ``rig SCENARIO.yaml --out FILE.npz``
+* ``closeloop DATA.npz|DATA.csv --out DIR [--config FILE]``
+
+Every command exits with status 2 and a one-line reason on bad input, and writes no partial
+file (all writers are atomic).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+__all__ = ["main"]
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2
+        sys.stderr.write(f"ssamb: error: {message}\n")
+        raise SystemExit(2)
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = _Parser(prog="python -m ssamb", description="ssamb: mu-analysis of a self-sensing AMB, reproduced")
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("simulate", help="run the nonlinear simulator for an experiment named in the config")
+    p.add_argument("--experiment", required=True, help="experiment name (config 'experiments')")
+    p.add_argument("--config", default=None, help="config file (default: the repository's config.yaml)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value, dotted key (repeatable)")
+    p.add_argument("--out", required=True, help="output .npz (a .json sidecar is written beside it)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("rig", help="simulate a rig (nominal model + effects + noise) from a scenario file")
+    p.add_argument("scenario", help="scenario YAML")
+    p.add_argument("--out", required=True, help="output .npz in the measured-data format")
+    p.add_argument("--quiet", action="store_true")
+
+    p = sub.add_parser("closeloop", help="find what the model lacks from measured data")
+    p.add_argument("data", help="measured data (.npz, or .csv with a .json sidecar)")
+    p.add_argument("--out", required=True, help="output directory (closeloop.json and figures)")
+    p.add_argument("--config", default=None, help="config of the nominal model")
+    p.add_argument("--quiet", action="store_true")
+    return ap
+
+
+def _cmd_simulate(args) -> None:
+    from .config import load_config
+    from .sim import simulate
+
+    out = Path(args.out)
+    if out.suffix != ".npz":
+        raise ValueError(f"--out {out}: must end in .npz")
+    cfg = load_config(args.config, args.overrides)
+    if args.experiment not in cfg["experiments"]:
+        raise ValueError(f"--experiment {args.experiment}: not in config (known: {', '.join(cfg['experiments'])})")
+    res = simulate(cfg, args.experiment, progress=None if not args.quiet else False)
+    res.save(out)
+
+
+def _cmd_rig(args) -> None:
+    from .rig import run_scenario
+
+    run_scenario(args.scenario, args.out, progress=not args.quiet)
+
+
+def _cmd_closeloop(args) -> None:
+    from .closeloop import run_closeloop
+
+    run_closeloop(args.data, args.out, config=args.config, progress=not args.quiet)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit status (0 success, 2 bad input)."""
+    args = _parser().parse_args(argv)
+    handlers = {"simulate": _cmd_simulate, "rig": _cmd_rig, "closeloop": _cmd_closeloop}
+    try:
+        handlers[args.command](args)
+    except (ValueError, FileNotFoundError, KeyError) as exc:
+        msg = " ".join(str(exc).split())
+        sys.stderr.write(f"ssamb {args.command}: error: {msg}\n")
+        return 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

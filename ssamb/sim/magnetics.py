@@ -1,0 +1,177 @@
+r"""Reluctance-network magnetics of one electromagnet (compiled with numba).
+
+Each electromagnet (ypos, yneg, xpos, xneg) is a series magnetic circuit: two airgaps that move
+with the rotor and an iron path (pole legs, back-iron arc, journal arc) with relative
+permeability :math:`\mu_r` (paper section 2.2, reluctance network model [25]). The flux
+:math:`\Phi` through the circuit is the state. The magnetomotive force the circuit needs is
+
+.. math::
+
+    \mathcal{F}_m(\Phi, \xi) = \Phi \frac{G(\xi)}{\mu_0 A_p}
+        + \sum_s l_s H_{an}(\Phi/A_s) + l_{fe} H_{hy}(\Phi/A_p; z),
+
+with :math:`G = 2(g_0 - \xi\cos\alpha)` the two gaps in series.
+
+Saturation (switchable) -- a smooth anhysteretic curve without singularity,
+
+.. math:: H_{an}(B) = \frac{B}{\mu_0\mu_r}\left(1 + s\,(|B|/B_k)^p\right),
+
+whose permeability halves at the knee :math:`B_k` and falls steeply above it (s = 0 turns
+saturation off).
+
+Hysteresis (switchable) -- a Prandtl-Ishlinskii operator: K play operators of widths
+:math:`r_k = r_{max} k/K` acting on the pole flux density with equal weights :math:`H_c/K`,
+
+.. math:: z_k \leftarrow \min(\max(z_k, B - r_k), B + r_k), \qquad
+          H_{hy} = \sum_k \frac{H_c}{K} \frac{B - z_k}{r_k},
+
+so that a large loop has coercivity :math:`H_c` and positive area (energy loss), and minor
+loops (PWM ripple) are thinner. It is applied over the whole iron length (a simplification:
+the pole legs carry the largest flux density).
+
+Eddy currents (switchable) -- an equivalent short-circuited one-turn winding of conductance
+:math:`g_e` links the flux, so that the coil and eddy MMFs satisfy
+:math:`N i - g_e \dot\Phi = \mathcal{F}_m`. With the coil equation
+:math:`v = R i + N\dot\Phi` (Faraday) the flux obeys
+
+.. math:: \dot\Phi = \frac{N v - R \mathcal{F}_m}{N^2 + g_e R}, \qquad
+          i = \frac{g_e v + N\mathcal{F}_m}{g_e R + N^2},
+
+a single state per magnet; :math:`g_e = 0` is the eddy-free circuit :math:`i = \mathcal F_m/N`.
+The flux lags the current by the first-order corner :math:`\partial\mathcal F_m/\partial\Phi / g_e`.
+
+Force -- Maxwell stress on both pole faces, projected on the magnet axis,
+:math:`F = 2 \frac{B^2 A_p}{2\mu_0}\cos\alpha = \Phi^2\cos\alpha/(\mu_0 A_p)`.
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from .params import (MU0, P_AP, P_COSA, P_G0, P_GAPK, P_GE, P_HC, P_HYST, P_INV_ABACK, P_INV_AP,
+                     P_INV_AROT, P_INV_BKNEE, P_INV_MU0MUR, P_L_BACK, P_L_POLE, P_L_ROT, P_LFE, P_N,
+                     P_NPLAY, P_PEXP, P_PLAY_INVR0, P_PLAY_R0, P_R, P_SAT)
+
+__all__ = ["h_anhysteretic", "mmf", "flux_from_current", "force_from_flux", "coil_current",
+           "play_update", "MAX_PLAY"]
+
+MAX_PLAY = 16
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def h_anhysteretic(b, p):
+    """Anhysteretic field H (A/m) and its derivative dH/dB for flux density ``b`` (T)."""
+    k = p[P_INV_MU0MUR]
+    if p[P_SAT] > 0.0:
+        x = abs(b) * p[P_INV_BKNEE]
+        q = 1.0
+        for _ in range(int(p[P_PEXP])):   # integer power: much cheaper than pow()
+            q *= x
+        return k * b * (1.0 + q), k * (1.0 + (p[P_PEXP] + 1.0) * q)
+    return k * b, k
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=True)
+def mmf(phi, gsum, z, p):
+    """MMF (A-turns) needed to carry flux ``phi`` (Wb) through gaps ``gsum`` (m, both in series).
+
+    ``z`` holds this magnet's play-operator states (read only). Returns ``(F, dF/dphi)``.
+    """
+    gk = p[P_GAPK]
+    f = phi * gsum * gk
+    df = gsum * gk
+    # pole legs (pole area), back iron, journal
+    iap = p[P_INV_AP]
+    h, dh = h_anhysteretic(phi * iap, p)
+    f += p[P_L_POLE] * h
+    df += p[P_L_POLE] * dh * iap
+    ia = p[P_INV_ABACK]
+    h, dh = h_anhysteretic(phi * ia, p)
+    f += p[P_L_BACK] * h
+    df += p[P_L_BACK] * dh * ia
+    ia = p[P_INV_AROT]
+    h, dh = h_anhysteretic(phi * ia, p)
+    f += p[P_L_ROT] * h
+    df += p[P_L_ROT] * dh * ia
+    if p[P_HYST] > 0.0:
+        b = phi * iap
+        n = int(p[P_NPLAY])
+        lw = p[P_LFE] * p[P_HC] / n
+        for k in range(n):
+            r = p[P_PLAY_R0 + k]
+            ir = p[P_PLAY_INVR0 + k]
+            zk = z[k]
+            if zk < b - r:
+                zk = b - r
+            elif zk > b + r:
+                zk = b + r
+            else:               # elastic (reversible) part of the play
+                df += lw * ir * iap
+            f += lw * (b - zk) * ir
+    return f, df
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=True)
+def play_update(phi, z, p):
+    """Advance the play-operator states ``z`` (in place) to the pole flux density of ``phi``."""
+    if p[P_HYST] > 0.0:
+        b = phi * p[P_INV_AP]
+        n = int(p[P_NPLAY])
+        for k in range(n):
+            r = p[P_PLAY_R0 + k]
+            if z[k] < b - r:
+                z[k] = b - r
+            elif z[k] > b + r:
+                z[k] = b + r
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=True)
+def coil_current(phi, gsum, z, v, p):
+    """Coil current (A) for flux ``phi`` and coil voltage ``v``: :math:`(g_e v + N F_m)/(g_e R + N^2)`."""
+    f, _ = mmf(phi, gsum, z, p)
+    n = p[P_N]
+    ge = p[P_GE]
+    return (ge * v + n * f) / (ge * p[P_R] + n * n)
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=True)
+def flux_from_current(i, gsum, z, p):
+    r"""Static flux (Wb) for a DC current ``i``: solve :math:`N i = F_m(\Phi)` by Newton's method."""
+    n = p[P_N]
+    target = n * i
+    phi = target * MU0 * p[P_AP] / (gsum + 1e-12)
+    for _ in range(60):
+        f, df = mmf(phi, gsum, z, p)
+        step = (f - target) / df
+        phi -= step
+        if abs(step) <= 1e-13 * (abs(phi) + 1e-12):
+            break
+    return phi
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def force_from_flux(phi, p):
+    r"""Attractive force (N) of one electromagnet along its axis, :math:`\Phi^2\cos\alpha/(\mu_0 A_p)`."""
+    return phi * phi * p[P_COSA] / (MU0 * p[P_AP])
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def gap_sum(displacement, p):
+    r"""Both airgaps of one magnet in series, :math:`2(g_0 - \xi\cos\alpha)` (m)."""
+    return 2.0 * (p[P_G0] - displacement * p[P_COSA])
+
+
+def static_force(params_packed: np.ndarray, current_a: float, displacement_m: float = 0.0) -> float:
+    """Static force (N) of one magnet at DC current (hysteresis states at the demagnetised origin)."""
+    z = np.zeros(MAX_PLAY)
+    gs = gap_sum(displacement_m, params_packed)
+    # With hysteresis the DC state depends on history: approach the current from zero so that the
+    # play operators sit on the ascending branch, as after power-up.
+    phi = 0.0
+    n_steps = 50
+    for k in range(1, n_steps + 1):
+        phi = flux_from_current(current_a * k / n_steps, gs, z, params_packed)
+        play_update(phi, z, params_packed)
+    return float(force_from_flux(phi, params_packed))
