@@ -886,25 +886,28 @@ def perturbation_residual(M, delta) -> float:
 
 
 def lmi_residual(M, result: MuResult) -> float:
-    """Normalised largest eigenvalue of the upper-bound LMI
+    """Normalised largest eigenvalue of the upper-bound certificate, in its scaled form
 
-    .. math:: M^H X_L M + j(G M - M^H G^H) - \\beta^2 X_R, \\quad \\beta = \\text{upper},
+    .. math:: M_D^H M_D + j(\\tilde G M_D - M_D^H \\tilde G^H) - \\beta^2 I, \\quad
+              M_D = D_L M D_R^{-1},\\; \\tilde G = D_R^{-H} G D_L^{-1},\\; \\beta = \\text{upper},
 
-    divided by :math:`\\beta^2 \\lambda_{\\max}(X_R)` (or by :math:`\\bar\\sigma(M)^2` when
-    β = 0).  A value ``<= ~1e-9`` certifies ``mu(M) <= upper``.
+    divided by :math:`\\max(\\beta^2, \\bar\\sigma(M_D)^2)`.  It is congruent to the LMI
+    :math:`M^H X_L M + j(G M - M^H G^H) - \\beta^2 X_R` (multiply by :math:`D_R^H \\cdot D_R`),
+    so a value ``<= ~1e-9`` certifies ``mu(M) <= upper``; the scaled form is the numerically
+    meaningful one when the scalings span many decades.
     """
     M = np.asarray(M, dtype=np.complex128)
     if M.ndim == 0:
         M = M.reshape(1, 1)
-    XL = result.d_left.conj().T @ result.d_left
-    XR = result.d_right.conj().T @ result.d_right
-    GM = result.g @ M
-    L = M.conj().T @ XL @ M + 1j * (GM - GM.conj().T) - result.upper ** 2 * XR
+    DL, DR = result.d_left, result.d_right
+    MD = DL @ np.linalg.solve(DR.T, M.T).T  # D_L M D_R^{-1}
+    Gt = np.linalg.solve(DR.conj().T, np.linalg.solve(DL.T, result.g.T).T)  # D_R^-H G D_L^-1
+    H = MD.conj().T @ MD
+    GM = Gt @ MD
+    L = H + 1j * (GM - GM.conj().T) - result.upper ** 2 * np.eye(H.shape[0])
     L = 0.5 * (L + L.conj().T)
     lam = float(np.linalg.eigvalsh(L)[-1])
-    den = result.upper ** 2 * float(np.linalg.eigvalsh(XR)[-1])
-    if den <= 0.0:
-        den = float(np.linalg.norm(M.conj().T @ XL @ M, 2)) + 1e-300
+    den = max(result.upper ** 2, float(np.linalg.norm(H, 2)), 1e-300)
     return lam / den
 
 
