@@ -1,0 +1,18 @@
+# ssamb: reproducible mu-analysis of a self-sensing AMB (see README.md).
+#
+#   snakemake --cores 2                       full reproduction -> results/report.html
+#   snakemake --cores 2 results/mu/selfsensing.json      one stage (and what it needs)
+#
+# Every config value reaches its rules through `params:`, so a changed value reruns exactly the
+# rules that use it and their descendants (Snakemake's default rerun triggers include params).
+
+configfile: "config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/simulate.smk"
+
+
+rule all:
+    input:
+        expand("results/sim/{experiment}.npz", experiment=SIM_EXPERIMENTS),

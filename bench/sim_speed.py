@@ -1,0 +1,51 @@
+"""Simulator speed: real-time factor (simulated seconds per wall second, one core, all physics
+on, compilation excluded) and the ripple-peak error against a run at 10x finer resolution.
+
+    python bench/sim_speed.py [--seconds 2.0]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from ssamb.config import load_config  # noqa: E402
+from ssamb.sim import simulate  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--seconds", type=float, default=2.0, help="simulated duration of the timed run")
+    args = ap.parse_args()
+    cfg = load_config()
+    mag = cfg["magnetics"]
+    assert mag["saturation"] and mag["hysteresis"] and mag["eddy_currents"], "benchmark needs all physics on"
+    # warm-up: compile the kernel (excluded from the timing)
+    simulate(cfg, "multisine", duration_s=0.01, progress=False)
+    fs = cfg["controller"]["fs_hz"]
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        res = simulate(cfg, "multisine", duration_s=args.seconds, progress=False, settle_s=0.0)
+        best = min(best, time.perf_counter() - t0)
+    n = len(res.data["t"])
+    print(f"simulated: {args.seconds:.2f} s of the 100 um multisine ({n} samples at {fs:.0f} Hz), all physics on")
+    print(f"wall time (best of 3, incl. calibration): {best:.3f} s")
+    print(f"real-time factor: {args.seconds / best:.1f}")
+    # ripple peak against 10x finer resolution
+    dur = 0.02
+    base = simulate(cfg, "multisine", duration_s=dur, substeps=1, track_ripple=True, progress=False)
+    fine = simulate(cfg, "multisine", duration_s=dur, substeps=10, track_ripple=True, progress=False)
+    m = min(len(base.ripple["i_max"]), len(fine.ripple["i_max"]))
+    pp_b = base.ripple["i_max"][:m] - base.ripple["i_min"][:m]
+    pp_f = fine.ripple["i_max"][:m] - fine.ripple["i_min"][:m]
+    err = np.max(np.abs(pp_b - pp_f) / pp_f)
+    print(f"ripple-peak error vs 10x finer resolution: {100 * err:.4f} % (max over {m} PWM periods)")
+
+
+if __name__ == "__main__":
+    main()
