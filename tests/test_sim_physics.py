@@ -219,11 +219,13 @@ def test_kernel_pid_equals_tustin_pid(cfg):
 @given(t=st.floats(0.0, 1.0), d=st.floats(0.02, 0.98))
 def test_ripple_shape_bounded_and_anchored(t, d):
     T = 1.0
-    s = _ripple_shape.py_func(t, 0.0, d, T)
+    t_on, t_off = (1 - d) / 2, (1 + d) / 2
+    s = _ripple_shape.py_func(t, t_on, t_off, T)
     assert -1.0 - 1e-12 <= s <= 1.0 + 1e-12
-    assert _ripple_shape.py_func((1 - d) / 2, 0.0, d, T) == pytest.approx(-1.0)
-    assert _ripple_shape.py_func((1 + d) / 2, 0.0, d, T) == pytest.approx(1.0)
-    assert _ripple_shape.py_func(0.0, 0.0, d, T) == pytest.approx(0.0, abs=1e-12)
+    assert _ripple_shape.py_func(t_on, t_on, t_off, T) == pytest.approx(-1.0)
+    assert _ripple_shape.py_func(t_off, t_on, t_off, T) == pytest.approx(1.0)
+    # centre-aligned PWM: the period start (middle of the off-interval) is the ripple average
+    assert _ripple_shape.py_func(0.0, t_on, t_off, T) == pytest.approx(0.0, abs=1e-12)
 
 
 @given(w=st.integers(4, 40), order=st.integers(0, 3))

@@ -324,20 +324,19 @@ def _track_ripple(st, p, fm):
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=True)
-def _ripple_shape(t, ts, dty, T):
-    """Normalised ripple of centre-aligned two-state PWM at time ``t`` of the period starting at
-    ``ts`` with commanded duty ``dty``: -1 at the turn-on edge, +1 at the turn-off edge, linear
-    in between (and 0 at the period start, the middle of the off-interval)."""
-    t_on = ts + (1.0 - dty) * T / 2.0
-    t_off = ts + (1.0 + dty) * T / 2.0
+def _ripple_shape(t, t_on, t_off, T):
+    r"""Normalised two-state PWM ripple at time ``t`` of a period whose coil voltage is +V on
+    ``[t_on, t_off]`` and -V elsewhere: -1 at the turn-on edge, +1 at the turn-off edge, linear
+    in between (rising over the on-time, falling over the off-time ``T - (t_off - t_on)``)."""
+    on = t_off - t_on
+    off = T - on
+    if on <= 0.0 or off <= 0.0:
+        return 0.0
     if t < t_on:
-        off = (1.0 - dty) * T
-        return -2.0 * (t - ts) / off if off > 0.0 else 0.0
+        return 1.0 - 2.0 * (t - (t_off - T)) / off
     if t <= t_off:
-        on = dty * T
-        return -1.0 + 2.0 * (t - t_on) / on if on > 0.0 else 0.0
-    off = (1.0 - dty) * T
-    return 1.0 - 2.0 * (t - t_off) / off if off > 0.0 else 0.0
+        return -1.0 + 2.0 * (t - t_on) / on
+    return 1.0 - 2.0 * (t - t_off) / off
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=True)
@@ -376,13 +375,18 @@ def _dcm_update(st, p, ring_i, ring_q, ring_s, i_samp, t, tb, tq, tsg, ti):
     """
     T = p[P_TPWM]
     ts = st[S_M] * T
-    dty = st[S_DUTY]
+    # the DSP knows its PWM timer, including the dead time it inserts before every turn-on
+    t_on = ts + (1.0 - st[S_DUTY]) * T / 2.0 + p[P_DEADTIME]
+    t_off = ts + (1.0 + st[S_DUTY]) * T / 2.0
+    dty = (t_off - t_on) / T
+    if dty < 0.0:
+        dty = 0.0
     w = int(p[P_SS_W])
     nidx = int(st[S_SSN])
     slot = nidx % SS_RING
     ring_i[slot] = i_samp
-    ring_q[slot] = dty * (1.0 - dty) * _ripple_shape(t, ts, dty, T)
-    on = 1.0 if (t >= ts + (1.0 - dty) * T / 2.0 and t <= ts + (1.0 + dty) * T / 2.0) else -1.0
+    ring_q[slot] = dty * (1.0 - dty) * _ripple_shape(t, t_on, t_off, T)
+    on = 1.0 if (t >= t_on and t <= t_off) else -1.0
     ring_s[slot] = on - (2.0 * dty - 1.0)
     nidx += 1
     st[S_SSN] = nidx
