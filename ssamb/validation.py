@@ -1,0 +1,203 @@
+r"""Validation of the uncertainty model and of the μ margin (paper section 6.1, Fig. 9).
+
+Augmented model
+---------------
+"An uncertainty model would be valid if it could be used along with the original nominal model
+to duplicate the behaviour of the nonlinear system": the nominal subsystem model
+:math:`\bar G` is replaced by :math:`\bar G + W\Delta` (eq. (4)) with :math:`\Delta` a fixed
+all-pass -- here :math:`\Delta = +1`, :math:`\Delta = -1` and the first-order all-pass
+:math:`\Delta(s) = (1 - s/\omega_a)/(1 + s/\omega_a)` -- and the closed loop is re-assembled.
+The additive path acts on the *deviation* of the subsystem input from its operating point
+(the weight was measured on the excited lines only; its DC value must not shift the set point):
+:math:`y = \bar G u + W\Delta\,(u - u_{op})`.
+
+Sweep test
+----------
+A sine sweep at the system input (the paper: 99 μm, 11 to 50 Hz) is applied to the nonlinear
+simulation, the nominal LTI closed loop and each augmented model. Delevitation is the rotor
+reaching the backup-bearing clearance, :math:`\sqrt{x^2 + y^2} \ge c`; its time gives the
+instantaneous sweep frequency. Because an LTI model scales linearly with the amplitude, its
+critical sweep amplitude is exactly :math:`c / \max_t \|p(t)\|` for the response
+:math:`p(t)` per unit amplitude; the nonlinear model's is found by bisection.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import control
+import numpy as np
+
+__all__ = [
+    "DELTAS",
+    "delta_system",
+    "augment_subsystem",
+    "first_contact",
+    "SweepOutcome",
+    "lti_sweep_outcome",
+    "critical_amplitude_lti",
+    "critical_amplitude_bisect",
+]
+
+#: The fixed all-pass choices of Delta reported for the augmented model.
+DELTAS = ("plus", "minus", "allpass")
+
+
+def delta_system(kind: str, dt: float, allpass_hz: float = 20.0) -> control.StateSpace:
+    r"""Discrete :math:`\Delta`: ``plus`` (+1), ``minus`` (-1) or ``allpass``
+    :math:`(1 - s/\omega_a)/(1 + s/\omega_a)` (Tustin at ``dt``; Tustin preserves |Δ| = 1)."""
+    if kind == "plus":
+        return control.ss([], [], [], [[1.0]], dt)
+    if kind == "minus":
+        return control.ss([], [], [], [[-1.0]], dt)
+    if kind == "allpass":
+        if not allpass_hz > 0:
+            raise ValueError(f"allpass_hz must be > 0 (got {allpass_hz})")
+        wa = 2 * np.pi * allpass_hz
+        s = control.tf("s")
+        return control.ss(control.sample_system((1 - s / wa) / (1 + s / wa), dt, method="tustin"))
+    raise ValueError(f"delta kind '{kind}': must be one of {', '.join(DELTAS)}")
+
+
+def augment_subsystem(model: control.StateSpace, weight: control.LTI, input_name: str,
+                      output_name: str, u_op: float, delta: str = "plus",
+                      allpass_hz: float = 20.0) -> control.StateSpace:
+    r"""Augmented subsystem :math:`y = \bar G u + W\Delta(u_k - u_{op})` on one channel pair.
+
+    Parameters
+    ----------
+    model : control.StateSpace
+        Discrete nominal subsystem with named inputs/outputs (an affine model has the input
+        ``one``, which is kept).
+    weight : control.LTI
+        Continuous-time (or discrete at the model's dt) uncertainty weight :math:`W`.
+    input_name, output_name : str
+        The channel pair on which the additive uncertainty acts (e.g. ``i_ypos`` -> ``y_ss``).
+    u_op : float
+        Operating point of that input (the path acts on the deviation).
+    delta : str
+        ``plus``, ``minus`` or ``allpass``.
+
+    Returns
+    -------
+    control.StateSpace
+        Same inputs and outputs as ``model``; discrete at ``model.dt``.
+    """
+    dt = model.dt
+    if not dt:
+        raise ValueError("the nominal model must be discrete")
+    ins = list(model.input_labels)
+    outs = list(model.output_labels)
+    if input_name not in ins:
+        raise ValueError(f"input '{input_name}' not in the model inputs {ins}")
+    if output_name not in outs:
+        raise ValueError(f"output '{output_name}' not in the model outputs {outs}")
+    w = weight if weight.dt else control.sample_system(control.ss(weight), dt, method="tustin")
+    wd = control.ss(w) * delta_system(delta, dt, allpass_hz)
+    path = control.ss(wd.A, wd.B, wd.C, wd.D, dt, inputs=["dev"], outputs=["dy"], name="w_delta")
+    nominal = control.ss(model.A, model.B, model.C, model.D, dt, inputs=ins,
+                         outputs=[o + "_nom" for o in outs], name="nominal")
+    blocks = [nominal, path]
+    # deviation of the channel input from its operating point
+    has_one = "one" in ins
+    if has_one:
+        dev = control.summing_junction(inputs=[input_name, "one"], output="dev", dt=dt, name="dev")
+        dev = control.ss(dev.A, dev.B, dev.C, np.asarray(dev.D) * np.array([[1.0, -u_op]]), dt,
+                         inputs=[input_name, "one"], outputs=["dev"], name="dev")
+    else:
+        dev = control.ss([], [], [], [[1.0]], dt, inputs=[input_name], outputs=["dev"], name="dev")
+        if u_op != 0.0:
+            raise ValueError("a non-zero operating point needs the affine input 'one' in the model")
+    blocks.append(dev)
+    for o in outs:
+        if o == output_name:
+            blocks.append(control.summing_junction(inputs=[o + "_nom", "dy"], output=o, dt=dt, name="s_" + o))
+        else:
+            blocks.append(control.summing_junction(inputs=[o + "_nom"], output=o, dt=dt, name="s_" + o))
+    aug = control.interconnect(blocks, inplist=ins, inputs=ins, outlist=outs, outputs=outs,
+                               name=f"{model.name}_aug_{delta}")
+    return control.ss(aug.A, aug.B, aug.C, aug.D, dt, inputs=ins, outputs=outs, name=aug.name)
+
+
+def first_contact(t: np.ndarray, x: np.ndarray, y: np.ndarray, clearance_m: float) -> float | None:
+    """First time the radial displacement reaches the clearance (None if never)."""
+    r = np.hypot(np.asarray(x, float), np.asarray(y, float))
+    idx = np.flatnonzero(r >= clearance_m)
+    return float(np.asarray(t)[idx[0]]) if idx.size else None
+
+
+@dataclass
+class SweepOutcome:
+    """Result of one model in the sweep test."""
+
+    model: str
+    delevitates: bool
+    time_s: float | None
+    sweep_hz: float | None
+    max_radial_m: float
+    extra: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {"model": self.model, "delevitates": self.delevitates, "time_s": self.time_s,
+                "sweep_hz": self.sweep_hz, "max_radial_m": self.max_radial_m, **self.extra}
+
+
+def lti_sweep_outcome(name: str, out: Mapping[str, np.ndarray], clearance_m: float,
+                      freq_at: Callable[[float], float]) -> SweepOutcome:
+    """Delevitation of an LTI closed-loop response (plant outputs ``x_meas``, ``y_meas``)."""
+    t = np.asarray(out["t"], float)
+    x = np.asarray(out["x_meas"], float)
+    y = np.asarray(out["y_meas"], float)
+    tc = first_contact(t, x, y, clearance_m)
+    return SweepOutcome(name, tc is not None, tc, None if tc is None else float(freq_at(tc)),
+                        float(np.max(np.hypot(x, y))))
+
+
+def critical_amplitude_lti(x_per_unit: np.ndarray, y_per_unit: np.ndarray, x_op: float, y_op: float,
+                           clearance_m: float) -> float:
+    r"""Sweep amplitude at which a linear model first reaches the clearance.
+
+    With the response to a unit-amplitude sweep :math:`p(t)` about the operating point
+    :math:`p_0`, the response to amplitude :math:`a` is :math:`p_0 + a\,p(t)`; the smallest
+    :math:`a` with :math:`\max_t \|p_0 + a p(t)\| = c` is found per sample from the quadratic
+    :math:`\|p_0 + a p\|^2 = c^2` (positive root), then minimised over t.
+    """
+    px = np.asarray(x_per_unit, float)
+    py = np.asarray(y_per_unit, float)
+    a2 = px**2 + py**2
+    b = 2 * (x_op * px + y_op * py)
+    c0 = x_op**2 + y_op**2 - clearance_m**2
+    if c0 >= 0:
+        return 0.0
+    ok = a2 > 0
+    disc = b[ok] ** 2 - 4 * a2[ok] * c0
+    roots = (-b[ok] + np.sqrt(disc)) / (2 * a2[ok])
+    return float(np.min(roots)) if roots.size else float("inf")
+
+
+def critical_amplitude_bisect(delevitates: Callable[[float], bool], lo: float, hi: float,
+                              rel_tol: float = 0.02, max_iter: int = 20) -> dict:
+    """Smallest amplitude in ``[lo, hi]`` for which ``delevitates(a)`` is True (bisection).
+
+    Assumes monotonicity (a larger sweep amplitude never stabilises the rotor). Returns
+    ``{"amplitude_m": a or None, "bracket": [lo, hi], "evaluations": n}``; ``None`` when even
+    ``hi`` does not delevitate.
+    """
+    if not 0 < lo < hi:
+        raise ValueError(f"need 0 < lo < hi (got {lo}, {hi})")
+    n = 0
+    if not delevitates(hi):
+        return {"amplitude_m": None, "bracket": [lo, hi], "evaluations": 1}
+    n += 1
+    if delevitates(lo):
+        return {"amplitude_m": lo, "bracket": [lo, lo], "evaluations": 2}
+    n += 1
+    a, b = lo, hi
+    while b - a > rel_tol * b and n < max_iter:
+        mid = 0.5 * (a + b)
+        n += 1
+        if delevitates(mid):
+            b = mid
+        else:
+            a = mid
+    return {"amplitude_m": b, "bracket": [a, b], "evaluations": n}
