@@ -37,7 +37,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .magnetics import MAX_PLAY, coil_current, force_from_flux, gap_sum, mmf, play_update
+from .magnetics import MAX_PLAY, gap_sum, mmf_update
 from .params import (MU0, P_AP, P_CC, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_CLEAR, P_COSA,
                      P_DEADTIME, P_DELAY_X, P_DELAY_Y, P_DMAX, P_DMIN, P_FS, P_G0, P_GAIN_X,
                      P_GAIN_Y, P_GE, P_GRAV, P_IBIAS, P_IREF_MAX, P_KC, P_KI_PA, P_KP_PA, P_LEQ,
@@ -134,24 +134,23 @@ def _disp(x, y, j):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
-def _magnet_segment(st, p, j, tau, acc, fm, dfm, n_den, r_den, ge, inv_den, vs):
-    r"""Advance the flux of magnet j by ``tau`` at constant coil voltage and gap sum ``gs``.
+def _segment(ph, v, f0, df, tau, n_den, r_den, ge, inv_den):
+    r"""Advance one magnet's flux by ``tau`` at constant coil voltage ``v``.
 
     Exponential integrator of :math:`\dot\Phi = (N v - R\mathcal F_m(\Phi))/(N^2 + g_e R)`
-    with the MMF linearised, :math:`\mathcal F_m \approx f + \kappa(\Phi - \Phi_0)`, where
-    ``fm[j]``, ``dfm[j]`` hold the MMF and the differential reluctance :math:`\kappa`
+    with the MMF linearised, :math:`\mathcal F_m \approx f_0 + \kappa(\Phi - \Phi_0)`, where
+    ``f0`` and ``df`` are the MMF and the differential reluctance :math:`\kappa`
     (evaluated exactly once per controller sample and carried along the segments linearly):
-    :math:`\Phi(\tau) = \Phi_0 + a\tau\,\varphi_1(b\tau)`, :math:`\varphi_1(x) = (1-e^{-x})/x`.
+    :math:`\Phi(\tau) = \Phi_0 + a\tau\,\varphi_1(b\tau)`, :math:`\varphi_1(x) = (1-e^{-x})/x`,
+    :math:`a = (N v - R f_0)/(N^2 + g_e R)`, :math:`b = R\kappa/(N^2 + g_e R)`.
     If the current would reverse, the diodes block (i = 0) and the flux decays through the
-    eddy path, :math:`g_e\dot\Phi = -\mathcal F_m`. Accumulates :math:`\int\Phi\,dt` and
-    :math:`\int\Phi^2 dt` (exact for a linear ramp) into ``acc[0:2]``.
+    eddy path, :math:`g_e\dot\Phi = -\mathcal F_m`.
+
+    Returns ``(Phi1, F1, blocked, int_Phi, int_Phi2, int_v)``: the flux and carried MMF at the
+    segment end, the diode flag (1.0 if blocked), and :math:`\int\Phi\,dt`,
+    :math:`\int\Phi^2 dt` (exact for a linear ramp) and :math:`\int v\,dt` over the segment
+    (an open coil's voltage is whatever keeps i = 0, :math:`v = N\dot\Phi`).
     """
-    if tau <= 0.0:
-        return
-    ph = st[S_PHI + j]
-    v = st[S_VOLT + j] * vs
-    f0 = fm[j]
-    df = dfm[j]
     a = n_den * v - r_den * f0
     b = r_den * df
     ph1 = ph + a * tau * _phi1(b * tau)
@@ -164,17 +163,24 @@ def _magnet_segment(st, p, j, tau, acc, fm, dfm, n_den, r_den, ge, inv_den, vs):
         else:
             ph1 = ph - f0 / df
             f1 = 0.0
-        st[S_BLK + j] = 1.0
+        blk = 1.0
+        iv = (ph1 - ph) * (n_den / inv_den)
     else:
-        st[S_BLK + j] = 0.0
-    st[S_PHI + j] = ph1
-    fm[j] = f1
-    acc[0] += 0.5 * tau * (ph + ph1)
-    acc[1] += tau * (ph * ph + ph * ph1 + ph1 * ph1) / 3.0
-    if st[S_BLK + j] > 0.5:     # open coil: its voltage is whatever keeps i = 0
-        acc[2] += (ph1 - ph) * (n_den / inv_den)   # v = N dPhi/dt at i = 0
-    else:
-        acc[2] += v * tau
+        blk = 0.0
+        iv = v * tau
+    i1p = 0.5 * tau * (ph + ph1)
+    i2p = tau * (ph * ph + ph * ph1 + ph1 * ph1) / 3.0
+    return ph1, f1, blk, i1p, i2p, iv
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def _coil_i(blk, volt, f, ge, vs, n, den):
+    r"""Coil current from the carried MMF, :math:`(g_e v + N\mathcal F_m)/(g_e R + N^2)`
+    (``den`` :math:`= g_e R + N^2`); 0 while the diodes block."""
+    if blk > 0.5:
+        return 0.0
+    i = (ge * volt * vs + n * f) / den
+    return i if i > 0.0 else 0.0
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
@@ -252,75 +258,119 @@ def _mean_forces(p, m1, m2, h):
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=True)
-def _pwm_event(st, p, j, t_ev, rip, rip_n, fm):
-    """Process the pending PWM event of amplifier ``j`` at time ``t_ev``."""
-    ph = st[S_PHASE + j]
-    if ph < 0.5:                      # turn-on edge
-        st[S_VOLT + j] = 1.0
-        st[S_PHASE + j] = 1.0
-        return rip_n
-    if ph < 1.5:                      # turn-off edge
-        st[S_VOLT + j] = -1.0
-        st[S_PHASE + j] = 2.0
-        return rip_n
-    # period start: PI update on the sampled (average) current
+def _advance_magnet(st, p, j, t_a, t_b, fm, dfm, rip, rip_n, track, n_den, r_den, ge, inv_den):
+    r"""Integrate magnet ``j`` (flux and amplifier ``j``) from ``t_a`` to ``t_b``.
+
+    Every PWM event of the amplifier inside the interval is an exact breakpoint: the turn-on
+    edge (:math:`v = +V`), the turn-off edge (:math:`v = -V`) and the period start, where the PI
+    loop samples the current, sets the duty cycle :math:`D` and thereby the next edges
+    :math:`t_s + (1 \mp D)T/2` (+ the dead time before turn-on). Between breakpoints
+    :func:`_segment` integrates the flux exactly for the linearised MMF.
+
+    The magnet's state is read from ``st`` once, kept in local variables through the event
+    loop and written back at the end. With ``track`` (ypos only) the ripple extremes of the
+    current period are updated after every segment and edge; at every ypos period start the
+    finished period's (start, max, min) is appended to ``rip``.
+
+    Returns ``(rip_n, int_Phi, int_Phi2, int_v)`` over the interval.
+    """
     T = p[P_TPWM]
-    st[S_M + j] += 1.0
-    ts = st[S_M + j] * T
-    st[S_VOLT + j] = -1.0
-    i_meas = _lin_current(st, p, j, fm)
-    e = st[S_IREF + j] - i_meas
-    integ_old = st[S_INTEG + j]
-    integ = integ_old + p[P_KI_PA] * e
-    dty = 0.5 + p[P_KP_PA] * e + integ
-    if dty > p[P_DMAX]:
-        dty = p[P_DMAX]
-        if e > 0.0:
-            integ = integ_old
-    elif dty < p[P_DMIN]:
-        dty = p[P_DMIN]
-        if e < 0.0:
-            integ = integ_old
-    st[S_INTEG + j] = integ
-    st[S_DUTY + j] = dty
-    t_on = ts + (1.0 - dty) * T / 2.0 + p[P_DEADTIME]
-    t_off = ts + (1.0 + dty) * T / 2.0
+    vs = p[P_V]
+    n = p[P_N]
+    den = ge * p[P_R] + n * n
+    ph = st[S_PHI + j]
+    volt = st[S_VOLT + j]
+    phase = st[S_PHASE + j]
+    t_on = st[S_TON + j]
+    t_off = st[S_TOFF + j]
+    mper = st[S_M + j]
+    blk = st[S_BLK + j]
+    f = fm[j]
+    df = dfm[j]
+    tr = track and j == 0
+    rmax = st[S_RIPMAX]
+    rmin = st[S_RIPMIN]
+    s1 = 0.0
+    s2 = 0.0
+    sv = 0.0
+    t_cur = t_a
+    while True:
+        # pending event: turn-on edge, turn-off edge or the next period start
+        if phase < 0.5:
+            te = t_on
+        elif phase < 1.5:
+            te = t_off
+        else:
+            te = (mper + 1.0) * T
+        last = te > t_b
+        t_seg = t_b if last else te
+        if t_seg > t_cur:
+            ph, f, blk, a1, a2, a3 = _segment(ph, volt * vs, f, df, t_seg - t_cur,
+                                              n_den, r_den, ge, inv_den)
+            s1 += a1
+            s2 += a2
+            sv += a3
+            t_cur = t_seg
+            if tr:
+                i0 = _coil_i(blk, volt, f, ge, vs, n, den)
+                rmax = max(rmax, i0)
+                rmin = min(rmin, i0)
+        if last:
+            break
+        if phase < 0.5:                   # turn-on edge
+            volt = 1.0
+            phase = 1.0
+        elif phase < 1.5:                 # turn-off edge
+            volt = -1.0
+            phase = 2.0
+        else:                             # period start: PI update on the sampled (average) current
+            mper += 1.0
+            ts = mper * T
+            volt = -1.0
+            i_meas = _coil_i(blk, volt, f, ge, vs, n, den)
+            e = st[S_IREF + j] - i_meas
+            integ_old = st[S_INTEG + j]
+            integ = integ_old + p[P_KI_PA] * e
+            dty = 0.5 + p[P_KP_PA] * e + integ
+            if dty > p[P_DMAX]:
+                dty = p[P_DMAX]
+                if e > 0.0:
+                    integ = integ_old
+            elif dty < p[P_DMIN]:
+                dty = p[P_DMIN]
+                if e < 0.0:
+                    integ = integ_old
+            st[S_INTEG + j] = integ
+            st[S_DUTY + j] = dty
+            t_on = ts + (1.0 - dty) * T / 2.0 + p[P_DEADTIME]
+            t_off = ts + (1.0 + dty) * T / 2.0
+            phase = 0.0 if t_on < t_off else 2.0
+            if j == 0:
+                # close the ripple record of the finished period of the ypos amplifier
+                if st[S_RIPN] > 0.5 and rip_n < rip.shape[1]:
+                    rip[0, rip_n] = ts - T
+                    rip[1, rip_n] = rmax
+                    rip[2, rip_n] = rmin
+                    rip_n += 1
+                rmax = i_meas
+                rmin = i_meas
+                st[S_RIPN] = 1.0
+        if tr:
+            i0 = _coil_i(blk, volt, f, ge, vs, n, den)
+            rmax = max(rmax, i0)
+            rmin = min(rmin, i0)
+    st[S_PHI + j] = ph
+    st[S_VOLT + j] = volt
+    st[S_PHASE + j] = phase
     st[S_TON + j] = t_on
     st[S_TOFF + j] = t_off
-    if t_on < t_off:
-        st[S_PHASE + j] = 0.0
-    else:
-        st[S_PHASE + j] = 2.0
+    st[S_M + j] = mper
+    st[S_BLK + j] = blk
+    fm[j] = f
     if j == 0:
-        # close the ripple record of the finished period of the ypos amplifier
-        if st[S_RIPN] > 0.5 and rip_n < rip.shape[1]:
-            rip[0, rip_n] = ts - T
-            rip[1, rip_n] = st[S_RIPMAX]
-            rip[2, rip_n] = st[S_RIPMIN]
-            rip_n += 1
-        st[S_RIPMAX] = i_meas
-        st[S_RIPMIN] = i_meas
-        st[S_RIPN] = 1.0
-    return rip_n
-
-
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
-def _next_event(st, p, j):
-    ph = st[S_PHASE + j]
-    if ph < 0.5:
-        return st[S_TON + j]
-    if ph < 1.5:
-        return st[S_TOFF + j]
-    return (st[S_M + j] + 1.0) * p[P_TPWM]
-
-
-@nb.njit(cache=True, error_model="numpy", fastmath=True)
-def _track_ripple(st, p, fm):
-    i0 = _lin_current(st, p, 0, fm)
-    if i0 > st[S_RIPMAX]:
-        st[S_RIPMAX] = i0
-    if i0 < st[S_RIPMIN]:
-        st[S_RIPMIN] = i0
+        st[S_RIPMAX] = rmax
+        st[S_RIPMIN] = rmin
+    return rip_n, s1, s2, sv
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=True)
@@ -524,8 +574,6 @@ def run_chunk(p, st, z, ring_i, ring_d, ring_s, ring_x, ring_y, tb, k0, k1,
     inv_den = 1.0 / (n_turns * n_turns + ge * p[P_R])
     n_den = n_turns * inv_den
     r_den = p[P_R] * inv_den
-    vs = p[P_V]
-    acc = np.zeros(3)
     vbar = np.zeros(4)
     fm = np.zeros(4)
     dfm = np.zeros(4)
@@ -539,8 +587,7 @@ def run_chunk(p, st, z, ring_i, ring_d, ring_s, ring_x, ring_y, tb, k0, k1,
         # ---------------- magnets: exact MMF once per sample ----------------
         for j in range(4):
             gs = gap_sum(_disp(st[S_X], st[S_Y], j), p)
-            play_update(st[S_PHI + j], z[j], p)
-            f, df = mmf(st[S_PHI + j], gs, z[j], p)
+            f, df = mmf_update(st[S_PHI + j], gs, z[j], p)
             fm[j] = f
             dfm[j] = df
         # ---------------- sensing ----------------
@@ -607,28 +654,9 @@ def run_chunk(p, st, z, ring_i, ring_d, ring_s, ring_x, ring_y, tb, k0, k1,
             t_a = (k + s / nsub) * dt
             t_b = (k + (s + 1.0) / nsub) * dt
             for j in range(4):
-                acc[0] = 0.0
-                acc[1] = 0.0
-                acc[2] = 0.0
-                t_cur = t_a
-                while True:
-                    te = _next_event(st, p, j)
-                    if te > t_b:
-                        _magnet_segment(st, p, j, t_b - t_cur, acc, fm, dfm, n_den, r_den, ge, inv_den, vs)
-                        if track and j == 0:
-                            _track_ripple(st, p, fm)
-                        break
-                    if te > t_cur:
-                        _magnet_segment(st, p, j, te - t_cur, acc, fm, dfm, n_den, r_den, ge, inv_den, vs)
-                        t_cur = te
-                        if track and j == 0:
-                            _track_ripple(st, p, fm)
-                    rip_n = _pwm_event(st, p, j, te, rip, rip_n, fm)
-                    if track and j == 0:
-                        _track_ripple(st, p, fm)
-                m1[j] = acc[0]
-                m2[j] = acc[1]
-                vbar[j] = acc[2] / h
+                rip_n, m1[j], m2[j], sv = _advance_magnet(st, p, j, t_a, t_b, fm, dfm, rip, rip_n,
+                                                          track, n_den, r_den, ge, inv_den)
+                vbar[j] = sv / h
             fmx, fmy = _mean_forces(p, m1, m2, h)
             _rotor_step(st, p, h, fmx, fmy, fxe, fye)
             # x probe: first-order low-pass of the true position

@@ -54,8 +54,8 @@ from .params import (MU0, P_AP, P_COSA, P_G0, P_GAPK, P_GE, P_HC, P_HYST, P_INV_
                      P_INV_AROT, P_INV_BKNEE, P_INV_MU0MUR, P_L_BACK, P_L_POLE, P_L_ROT, P_LFE, P_N,
                      P_NPLAY, P_PEXP, P_PLAY_INVR0, P_PLAY_R0, P_R, P_SAT)
 
-__all__ = ["h_anhysteretic", "mmf", "flux_from_current", "force_from_flux", "coil_current",
-           "play_update", "MAX_PLAY"]
+__all__ = ["h_anhysteretic", "mmf", "mmf_update", "flux_from_current", "force_from_flux",
+           "coil_current", "play_update", "MAX_PLAY"]
 
 MAX_PLAY = 16
 
@@ -109,6 +109,47 @@ def mmf(phi, gsum, z, p):
                 zk = b + r
             else:               # elastic (reversible) part of the play
                 df += lw * ir * iap
+            f += lw * (b - zk) * ir
+    return f, df
+
+
+@nb.njit(cache=True, error_model="numpy", fastmath=True)
+def mmf_update(phi, gsum, z, p):
+    r""":func:`play_update` followed by :func:`mmf` in one pass over the play operators.
+
+    After the update every play operator is in its elastic range, :math:`|B - z_k| \le r_k`,
+    so each contributes :math:`l_{fe} H_c/(K r_k A_p)` to :math:`dF/d\Phi`. Returns ``(F, dF/dphi)``
+    like :func:`mmf`; ``z`` is updated in place.
+    """
+    gk = p[P_GAPK]
+    f = phi * gsum * gk
+    df = gsum * gk
+    iap = p[P_INV_AP]
+    h, dh = h_anhysteretic(phi * iap, p)
+    f += p[P_L_POLE] * h
+    df += p[P_L_POLE] * dh * iap
+    ia = p[P_INV_ABACK]
+    h, dh = h_anhysteretic(phi * ia, p)
+    f += p[P_L_BACK] * h
+    df += p[P_L_BACK] * dh * ia
+    ia = p[P_INV_AROT]
+    h, dh = h_anhysteretic(phi * ia, p)
+    f += p[P_L_ROT] * h
+    df += p[P_L_ROT] * dh * ia
+    if p[P_HYST] > 0.0:
+        b = phi * iap
+        n = int(p[P_NPLAY])
+        lw = p[P_LFE] * p[P_HC] / n
+        for k in range(n):
+            r = p[P_PLAY_R0 + k]
+            ir = p[P_PLAY_INVR0 + k]
+            zk = z[k]
+            if zk < b - r:
+                zk = b - r
+            elif zk > b + r:
+                zk = b + r
+            z[k] = zk
+            df += lw * ir * iap
             f += lw * (b - zk) * ir
     return f, df
 
