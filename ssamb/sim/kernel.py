@@ -38,6 +38,9 @@ import numba as nb
 import numpy as np
 
 from .magnetics import MAX_PLAY, gap_sum, mmf_update
+# numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
+# params.py (the P_* layout) or a compiled helper imported from another module, change this
+# file too (or clear __pycache__), or stale machine code with old constants is reused.
 from .params import (MU0, P_AP, P_CC, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_CLEAR, P_COSA,
                      P_DEADTIME, P_DELAY_X, P_DELAY_Y, P_DMAX, P_DMIN, P_FS, P_G0, P_GAIN_X,
                      P_GAIN_Y, P_GE, P_GRAV, P_IBIAS, P_IREF_MAX, P_KC, P_KI_PA, P_KP_PA, P_LEQ,

@@ -50,14 +50,29 @@ import math
 import numba as nb
 import numpy as np
 
-from .params import (MU0, P_AP, P_COSA, P_G0, P_GAPK, P_GE, P_HC, P_HYST, P_INV_ABACK, P_INV_AP,
-                     P_INV_AROT, P_INV_BKNEE, P_INV_MU0MUR, P_L_BACK, P_L_POLE, P_L_ROT, P_LFE, P_N,
+from .params import (MU0, P_AP, P_COSA, P_FE_C1, P_FE_C2, P_G0, P_GAPK, P_GE, P_HC, P_HYST,
+                     P_HYST_DF, P_INV_AP, P_INV_BKNEE, P_INV_MU0MUR, P_INV_PHIK, P_LFE, P_N,
                      P_NPLAY, P_PEXP, P_PLAY_INVR0, P_PLAY_R0, P_R, P_SAT)
 
-__all__ = ["h_anhysteretic", "mmf", "mmf_update", "flux_from_current", "force_from_flux",
+__all__ = ["h_anhysteretic", "mmf_anhysteretic", "mmf", "mmf_update", "flux_from_current", "force_from_flux",
            "coil_current", "play_update", "MAX_PLAY"]
 
 MAX_PLAY = 16
+# numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
+# params.py (the P_* layout) or a compiled helper imported from another module, change this
+# file too (or clear __pycache__), or stale machine code with old constants is reused.
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def _ipow(x, n):
+    """``x**n`` for an integer ``n >= 0`` by repeated squaring (4 multiplications for n = 10)."""
+    r = 1.0
+    while n > 0:
+        if n & 1:
+            r *= x
+        x *= x
+        n >>= 1
+    return r
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
@@ -65,12 +80,30 @@ def h_anhysteretic(b, p):
     """Anhysteretic field H (A/m) and its derivative dH/dB for flux density ``b`` (T)."""
     k = p[P_INV_MU0MUR]
     if p[P_SAT] > 0.0:
-        x = abs(b) * p[P_INV_BKNEE]
-        q = 1.0
-        for _ in range(int(p[P_PEXP])):   # integer power: much cheaper than pow()
-            q *= x
+        q = _ipow(abs(b) * p[P_INV_BKNEE], int(p[P_PEXP]))
         return k * b * (1.0 + q), k * (1.0 + (p[P_PEXP] + 1.0) * q)
     return k * b, k
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def mmf_anhysteretic(phi, gsum, p):
+    r"""Gap and anhysteretic iron part of the MMF and its derivative, ``(F, dF/dphi)``.
+
+    All iron sections carry the same flux, so with :math:`q = (|\Phi|/(A_p B_k))^p` (the pole
+    flux density relative to the knee) one power serves all of them:
+
+    .. math:: \Phi\frac{G}{\mu_0 A_p} + \sum_s l_s H_{an}(\Phi/A_s) = \Phi\,(\frac{G}{\mu_0 A_p} + c_1 + c_2 q),
+              \qquad c_1 = \sum_s \frac{l_s}{\mu_0\mu_r A_s}, \quad
+              c_2 = \sum_s \frac{l_s}{\mu_0\mu_r A_s}\Big(\frac{A_p}{A_s}\Big)^p,
+
+    (``P_FE_C1``, ``P_FE_C2`` precomputed by :meth:`~ssamb.sim.params.AMBParams.pack`), and
+    :math:`dF/d\Phi = G/(\mu_0 A_p) + c_1 + (p+1) c_2 q`.
+    """
+    g = gsum * p[P_GAPK] + p[P_FE_C1]
+    if p[P_SAT] > 0.0:
+        c2q = p[P_FE_C2] * _ipow(abs(phi) * p[P_INV_PHIK], int(p[P_PEXP]))
+        return phi * (g + c2q), g + (p[P_PEXP] + 1.0) * c2q
+    return phi * g, g
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=True)
@@ -79,23 +112,9 @@ def mmf(phi, gsum, z, p):
 
     ``z`` holds this magnet's play-operator states (read only). Returns ``(F, dF/dphi)``.
     """
-    gk = p[P_GAPK]
-    f = phi * gsum * gk
-    df = gsum * gk
-    # pole legs (pole area), back iron, journal
-    iap = p[P_INV_AP]
-    h, dh = h_anhysteretic(phi * iap, p)
-    f += p[P_L_POLE] * h
-    df += p[P_L_POLE] * dh * iap
-    ia = p[P_INV_ABACK]
-    h, dh = h_anhysteretic(phi * ia, p)
-    f += p[P_L_BACK] * h
-    df += p[P_L_BACK] * dh * ia
-    ia = p[P_INV_AROT]
-    h, dh = h_anhysteretic(phi * ia, p)
-    f += p[P_L_ROT] * h
-    df += p[P_L_ROT] * dh * ia
+    f, df = mmf_anhysteretic(phi, gsum, p)
     if p[P_HYST] > 0.0:
+        iap = p[P_INV_AP]
         b = phi * iap
         n = int(p[P_NPLAY])
         lw = p[P_LFE] * p[P_HC] / n
@@ -118,39 +137,25 @@ def mmf_update(phi, gsum, z, p):
     r""":func:`play_update` followed by :func:`mmf` in one pass over the play operators.
 
     After the update every play operator is in its elastic range, :math:`|B - z_k| \le r_k`,
-    so each contributes :math:`l_{fe} H_c/(K r_k A_p)` to :math:`dF/d\Phi`. Returns ``(F, dF/dphi)``
-    like :func:`mmf`; ``z`` is updated in place.
+    so the hysteresis adds the constant slope :math:`\sum_k l_{fe} H_c/(K r_k A_p)`
+    (``P_HYST_DF``) to :math:`dF/d\Phi`. Returns ``(F, dF/dphi)`` like :func:`mmf`; ``z`` is
+    updated in place.
     """
-    gk = p[P_GAPK]
-    f = phi * gsum * gk
-    df = gsum * gk
-    iap = p[P_INV_AP]
-    h, dh = h_anhysteretic(phi * iap, p)
-    f += p[P_L_POLE] * h
-    df += p[P_L_POLE] * dh * iap
-    ia = p[P_INV_ABACK]
-    h, dh = h_anhysteretic(phi * ia, p)
-    f += p[P_L_BACK] * h
-    df += p[P_L_BACK] * dh * ia
-    ia = p[P_INV_AROT]
-    h, dh = h_anhysteretic(phi * ia, p)
-    f += p[P_L_ROT] * h
-    df += p[P_L_ROT] * dh * ia
+    f, df = mmf_anhysteretic(phi, gsum, p)
     if p[P_HYST] > 0.0:
-        b = phi * iap
+        b = phi * p[P_INV_AP]
         n = int(p[P_NPLAY])
         lw = p[P_LFE] * p[P_HC] / n
         for k in range(n):
             r = p[P_PLAY_R0 + k]
-            ir = p[P_PLAY_INVR0 + k]
             zk = z[k]
             if zk < b - r:
                 zk = b - r
             elif zk > b + r:
                 zk = b + r
             z[k] = zk
-            df += lw * ir * iap
-            f += lw * (b - zk) * ir
+            f += lw * (b - zk) * p[P_PLAY_INVR0 + k]
+        df += p[P_HYST_DF]
     return f, df
 
 

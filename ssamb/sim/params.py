@@ -49,6 +49,8 @@ _names = [
     "INV_MU0MUR", "INV_BKNEE", "INV_AP", "INV_ABACK", "INV_AROT", "GAPK", "LFE",
 ]
 _names += [f"PLAY_R{k}" for k in range(16)] + [f"PLAY_INVR{k}" for k in range(16)]
+# appended (existing indices stay put): iron MMF constants and the elastic hysteresis slope
+_names += ["FE_C1", "FE_C2", "INV_PHIK", "HYST_DF"]
 for _i, _n in enumerate(_names):
     globals()["P_" + _n] = _i
 P_SIZE = len(_names)
@@ -191,10 +193,24 @@ class AMBParams:
             INV_AROT=1.0 / self.a_rotor_m2, GAPK=1.0 / (MU0 * self.pole_area_m2),
             LFE=self.l_iron_total_m,
         )
+        # iron MMF Phi (c1 + c2 q), q = (|Phi|/(A_p B_k))^p: sum over the sections s of
+        # l_s/(mu0 mu_r A_s) and of the same times (A_p/A_s)^p (see magnetics.mmf_anhysteretic)
+        pexp = int(self.saturation_exponent)
+        ap = self.pole_area_m2
+        sections = ((self.l_pole_m, ap), (self.l_back_m, self.a_back_m2), (self.l_rotor_m, self.a_rotor_m2))
+        k_fe = 1.0 / (MU0 * self.mu_r)
+        vals.update(
+            FE_C1=sum(k_fe * l / a for l, a in sections),
+            FE_C2=sum(k_fe * l / a * (ap / a) ** pexp for l, a in sections),
+            INV_PHIK=1.0 / (ap * self.b_knee_t),
+        )
         for k in range(16):
             r = self.play_width_max_t * (k + 1) / self.n_play
             vals[f"PLAY_R{k}"] = r
             vals[f"PLAY_INVR{k}"] = 1.0 / r
+        # slope of the hysteresis MMF with every play operator elastic: sum_k l_fe H_c/(K r_k A_p)
+        vals["HYST_DF"] = sum(self.l_iron_total_m * self.coercive_field_a_per_m / self.n_play
+                              / vals[f"PLAY_R{k}"] / ap for k in range(self.n_play))
         for k, v in overrides.items():
             if k not in vals:
                 raise KeyError(f"unknown kernel parameter '{k}'")
