@@ -161,7 +161,10 @@ def test_sweep_phase_derivative_is_frequency(f0, f1, T, law):
     h = 1e-6
     dpsi = (sg.sweep_phase_rad(t + h, f0, f1, T, law) - sg.sweep_phase_rad(t - h, f0, f1, T, law)) / (2 * h)
     f = sg.sweep_frequency_at(t, f0, f1, T, law)
-    np.testing.assert_allclose(dpsi / (2 * np.pi), f, rtol=1e-5, atol=1e-5)
+    # the frequency law has kinks at t = 0 and t = T: a central difference straddling one is not
+    # a derivative, so those samples are left out
+    smooth = (np.abs(t) > 2 * h) & (np.abs(t - T) > 2 * h)
+    np.testing.assert_allclose(dpsi[smooth] / (2 * np.pi), f[smooth], rtol=1e-5, atol=1e-5)
 
 
 # --------------------------------------------------------------------------------- pulses
