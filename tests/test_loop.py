@@ -1,0 +1,286 @@
+"""Tests of ssamb.loop: closed-loop assembly against hand-derived loops, simulation, d2c."""
+from __future__ import annotations
+
+import warnings
+
+import control
+import numpy as np
+import pytest
+
+from ssamb.ident import IdentifiedModel
+from ssamb.loop import (
+    CL_OUTPUTS,
+    assemble_closed_loop,
+    d2c_error,
+    d2c_pole_sensitivity,
+    equilibrium,
+    simulate_closed_loop,
+    stability,
+    to_continuous,
+)
+
+FS = 83300.0
+DT = 1.0 / FS
+CUR = ["i_ypos", "i_yneg", "i_xpos", "i_xneg"]
+
+
+def _z(f_hz, dt=DT):
+    return np.exp(2j * np.pi * f_hz * dt)
+
+
+def _static(gain, inputs, outputs, name, dt=DT):
+    """A static gain as a StateSpace with no states (gain: l x m)."""
+    g = np.atleast_2d(np.asarray(gain, float))
+    return control.ss(np.zeros((0, 0)), np.zeros((0, g.shape[1])), np.zeros((g.shape[0], 0)), g, dt,
+                      inputs=inputs, outputs=outputs, name=name)
+
+
+def _first_order(a, b, inputs, outputs, name, dt=DT, c=1.0):
+    """x+ = a x + b u, y = c x (SISO, strictly proper)."""
+    return control.ss([[a]], [[b]], [[c]], [[0.0]], dt, inputs=inputs, outputs=outputs, name=name)
+
+
+def _pi(kp, ki_dt, dt=DT):
+    """Discrete PI C(z) = kp + ki_dt / (z - 1): state-space x+ = x + e, u = ki_dt x + kp e."""
+    return control.ss([[1.0]], [[1.0]], [[ki_dt]], [[kp]], dt)
+
+
+# --------------------------------------------------------------------------------------
+# SISO: assemble a loop where only the x axis matters and compare with T = PC / (1 + PC)
+# --------------------------------------------------------------------------------------
+def _siso_setup():
+    """x loop: amplifier i_xpos = u_x_cmd (static), plant x = P(z) i_xpos, PI controller.
+
+    Everything else is decoupled: the y loop (through a first-order self-sensing) is stable
+    and does not touch x.
+    """
+    a_p, b_p = 0.999, 2e-3  # plant P(z) = b_p / (z - a_p)
+    kp, ki = 0.5, 0.01
+    amp = np.zeros((4, 4))
+    amp[2, 0] = 1.0  # i_xpos = u_x_cmd
+    amp[0, 1] = 1.0  # i_ypos = u_y_cmd
+    amplifier = _static(amp, ["u_x_cmd", "u_y_cmd", "x_meas", "y_meas"], CUR, "amplifier")
+    # plant: x from i_xpos through P; y from i_ypos through a stable first order
+    plant = control.ss(np.diag([a_p, 0.5]), np.array([[0, 0, b_p, 0], [0.2, 0, 0, 0]]), np.eye(2),
+                       np.zeros((2, 4)), DT, inputs=CUR, outputs=["x_meas", "y_meas"], name="plant")
+    selfsensing = _first_order(0.5, 0.1, ["i_ypos"], ["y_ss"], "selfsensing")  # stable y loop
+    pid = _pi(kp, ki)
+    return plant, amplifier, selfsensing, pid, (a_p, b_p, kp, ki)
+
+
+def test_siso_loop_matches_analytic_complementary_sensitivity():
+    plant, amplifier, selfsensing, pid, (a_p, b_p, kp, ki) = _siso_setup()
+    cl = assemble_closed_loop(plant, amplifier, selfsensing, pid, pid)
+    assert list(cl.output_labels) == list(CL_OUTPUTS)
+    assert list(cl.input_labels) == ["r_x", "r_y", "inj_x", "inj_y"]
+    i_rx = cl.input_labels.index("r_x")
+    i_x = cl.output_labels.index("x_meas")
+    i_ux = cl.output_labels.index("u_x")
+    i_injx = cl.input_labels.index("inj_x")
+    for f in (1.0, 10.0, 123.0, 1e3, 1e4, 4e4):
+        z = _z(f)
+        P = b_p / (z - a_p)
+        C = kp + ki / (z - 1.0)
+        L = P * C
+        H = cl(z)
+        assert abs(H[i_x, i_rx] - L / (1 + L)) < 1e-10 * max(1.0, abs(L / (1 + L)))
+        # control sensitivity r -> u and input disturbance inj -> x
+        assert abs(H[i_ux, i_rx] - C / (1 + L)) < 1e-10 * max(1.0, abs(C / (1 + L)))
+        assert abs(H[i_x, i_injx] - P / (1 + L)) < 1e-10 * max(1.0, abs(P / (1 + L)))
+    rep = stability(cl)
+    assert rep.stable and rep.spectral_radius < 1
+
+
+def test_mimo_identity_like_loop_matches_hand_derivation():
+    """Amplifier = identity on the commands (i_xpos = u_x_cmd, i_xneg = -u_x_cmd, likewise y),
+    plant = differential force through first-order lags, self-sensing = gain on i_ypos.
+
+    By hand (z-domain): i_xpos - i_xneg = 2 u_x_cmd, x = P_x (2 u_x_cmd),
+    x loop: T_x = 2 P_x C / (1 + 2 P_x C). y loop: y_ss = S i_ypos = S u_y_cmd with S = s/z (a
+    one-sample delay, so that no algebraic loop forms), y = P_y 2 u_y_cmd; the controller sees
+    y_ss: u_y = C (r_y - S u_y_cmd) -> u_y_cmd / r_y = C / (1 + S C),
+    y / r_y = 2 P_y C / (1 + S C), y_ss / r_y = S C / (1 + S C).
+    """
+    amp = np.zeros((4, 4))
+    amp[0, 1], amp[1, 1] = 1.0, -1.0
+    amp[2, 0], amp[3, 0] = 1.0, -1.0
+    amplifier = _static(amp, ["u_x_cmd", "u_y_cmd", "x_meas", "y_meas"], CUR, "amplifier")
+    ax, bx, ay, by = 0.99, 1e-3, 0.98, 2e-3
+    A = np.diag([ax, ay])
+    B = np.array([[0, 0, bx, -bx], [by, -by, 0, 0]])
+    plant = control.ss(A, B, np.eye(2), np.zeros((2, 4)), DT, inputs=CUR, outputs=["x_meas", "y_meas"])
+    s_gain = 0.3
+    selfsensing = control.ss([[0.0]], [[1.0]], [[s_gain]], [[0.0]], DT, inputs=["i_ypos"], outputs=["y_ss"])
+    pid = _pi(0.8, 0.02)
+    cl = assemble_closed_loop(plant, amplifier, selfsensing, pid, pid)
+    ins, outs = list(cl.input_labels), list(cl.output_labels)
+    for f in (2.0, 50.0, 800.0, 2e4):
+        z = _z(f)
+        C = 0.8 + 0.02 / (z - 1)
+        Px = bx / (z - ax)
+        Py = by / (z - ay)
+        S = s_gain / z
+        H = cl(z)
+        Tx = 2 * Px * C / (1 + 2 * Px * C)
+        np.testing.assert_allclose(H[outs.index("x_meas"), ins.index("r_x")], Tx, rtol=1e-10)
+        np.testing.assert_allclose(H[outs.index("y_meas"), ins.index("r_y")], 2 * Py * C / (1 + S * C), rtol=1e-10)
+        np.testing.assert_allclose(H[outs.index("y_ss"), ins.index("r_y")], S * C / (1 + S * C), rtol=1e-10)
+        np.testing.assert_allclose(H[outs.index("i_yneg"), ins.index("r_y")], -C / (1 + S * C), rtol=1e-10)
+        # axes decoupled
+        assert abs(H[outs.index("x_meas"), ins.index("r_y")]) < 1e-14
+        # injection inj_y -> u_y: -S C / (1 + S C)
+        np.testing.assert_allclose(H[outs.index("u_y"), ins.index("inj_y")], -S * C / (1 + S * C), rtol=1e-10)
+
+
+def _affine_models():
+    """Affine subsystems (IdentifiedModel) with a non-zero operating point.
+
+    amplifier: i = bias + (+-) u_cmd (static, via a fast first-order state), plant: first-order
+    lags of the differential currents with a gravity-like offset in y, self-sensing: y_ss = 0.5
+    (i_ypos - 3.57), i.e. zero at the operating current.
+    """
+    a = 0.5
+    Ba = np.zeros((4, 5))
+    Ba[0, 1], Ba[1, 1], Ba[2, 0], Ba[3, 0] = 1 - a, -(1 - a), 1 - a, -(1 - a)
+    Ba[:, 4] = 3.0 * (1 - a)
+    amp = IdentifiedModel(A=a * np.eye(4), B=Ba, C=np.eye(4), D=np.zeros((4, 5)), dt=DT, method="hand",
+                          input_names=("u_x_cmd", "u_y_cmd", "x_meas", "y_meas"), output_names=tuple(CUR),
+                          u_op=np.zeros(4), y_op=np.full(4, 3.0))
+    ap = 0.99
+    Bp = np.array([[0, 0, 1e-5, -1e-5, 0.0], [1e-5, -1e-5 * 3.57 / 2.43, 0, 0, 0.0]]) * (1 - ap) * 100
+    plant = IdentifiedModel(A=ap * np.eye(2), B=Bp, C=np.eye(2), D=np.zeros((2, 5)), dt=DT, method="hand",
+                            input_names=tuple(CUR), output_names=("x_meas", "y_meas"),
+                            u_op=np.array([3.57, 2.43, 3, 3]), y_op=np.zeros(2))
+    ss = IdentifiedModel(A=np.array([[0.3]]), B=np.array([[0.7 * 0.5e-4, -0.7 * 0.5e-4 * 3.57]]), C=np.eye(1),
+                         D=np.zeros((1, 2)), dt=DT, method="hand", input_names=("i_ypos",),
+                         output_names=("y_ss",), u_op=np.array([3.57]), y_op=np.zeros(1))
+    return plant, amp, ss
+
+
+def test_affine_loop_has_input_one_and_starts_at_operating_point():
+    plant, amp, ss = _affine_models()
+    pid = _pi(2000.0, 20.0)
+    cl = assemble_closed_loop(plant, amp, ss, pid, pid)
+    assert "one" in cl.input_labels
+    assert stability(cl).stable
+    n = 2000
+    t = np.arange(n) * DT
+    out = simulate_closed_loop(cl, t, np.zeros(n), np.zeros(n))
+    # the integrators settle where y_ss = r_y = 0, i.e. i_ypos = 3.57; no start-up transient
+    np.testing.assert_allclose(out["y_ss"], 0.0, atol=1e-15)
+    np.testing.assert_allclose(out["i_ypos"], 3.57, rtol=1e-12)
+    np.testing.assert_allclose(out["u_y"], 0.57, rtol=1e-10)
+    np.testing.assert_allclose(out["x_meas"], 0.0, atol=1e-15)
+    assert np.ptp(out["states"], axis=0).max() < 1e-12
+    # same columns as the nonlinear data
+    for c in ("t", "r_x", "r_y", "inj_x", "inj_y", "x_meas", "y_meas", "y_ss", *CUR, "u_x", "u_y"):
+        assert c in out and out[c].shape == (n,)
+
+
+def test_simulate_closed_loop_matches_forced_response_and_tracks_step():
+    plant, amp, ss = _affine_models()
+    pid = _pi(2000.0, 20.0)
+    cl = assemble_closed_loop(plant, amp, ss, pid, pid)
+    n = 3000
+    t = np.arange(n) * DT
+    inj = np.where(t > 5e-3, 0.1, 0.0)
+    out = simulate_closed_loop(cl, t, 0.0, 0.0, inj_x=inj)
+    U = np.vstack([np.zeros(n), np.zeros(n), inj, np.zeros(n), np.ones(n)])
+    x0 = equilibrium(cl, U[:, 0])
+    ref = control.forced_response(cl, T=t, U=U, X0=x0)
+    np.testing.assert_allclose(out["x_meas"], np.asarray(ref.outputs)[0], rtol=1e-9, atol=1e-18)
+    # integral action rejects the input disturbance
+    assert abs(out["x_meas"][-1]) < 0.05 * np.max(np.abs(out["x_meas"]))
+
+
+def test_assembly_errors():
+    plant, amplifier, selfsensing, pid, _ = _siso_setup()
+    bad_dt = control.ss([[1.0]], [[1.0]], [[1.0]], [[1.0]], 2 * DT)
+    with pytest.raises(ValueError, match="sampling times"):
+        assemble_closed_loop(plant, amplifier, selfsensing, bad_dt, pid)
+    wrong = _static([[1.0]], ["i_yneg"], ["y_ss"], "ss")
+    with pytest.raises(ValueError, match="selfsensing"):
+        assemble_closed_loop(plant, amplifier, wrong, pid, pid)
+    # D-loop: static self-sensing gain * static amplifier * PID feedthrough
+    loop_ss = _static([[1.0]], ["i_ypos"], ["y_ss"], "ss")
+    with pytest.raises(ValueError, match="algebraic loop"):
+        assemble_closed_loop(plant, amplifier, loop_ss, pid, pid)
+    # unstable loop (positive feedback through a negative self-sensing gain and a big PI)
+    neg = _static([[-1.0]], ["i_ypos"], ["y_ss"], "ss")
+    amp_delay = control.ss(np.zeros((4, 4)), np.asarray(amplifier.D), np.eye(4), np.zeros((4, 4)), DT,
+                           inputs=list(amplifier.input_labels), outputs=CUR)
+    with pytest.raises(ValueError, match="unstable"):
+        assemble_closed_loop(plant, amp_delay, neg, pid, _pi(5.0, 1.0), require_stable=True)
+    with pytest.warns(UserWarning, match="unstable"):
+        assemble_closed_loop(plant, amp_delay, neg, pid, _pi(5.0, 1.0))
+
+
+# --------------------------------------------------------------------------------------
+# d2c
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("method", ["tustin", "zoh"])
+def test_c2d_d2c_round_trip(method):
+    rng = np.random.default_rng(4)
+    # a stable continuous MIMO system with dynamics well below Nyquist (41.65 kHz)
+    sysc = control.ss([[-200.0, 2000.0, 0], [-2000.0, -200.0, 0], [0, 0, -5000.0]], rng.standard_normal((3, 2)),
+                      rng.standard_normal((2, 3)), rng.standard_normal((2, 2)), inputs=["a", "b"], outputs=["c", "d"])
+    sysd = control.sample_system(sysc, DT, method=method)
+    back = to_continuous(sysd, method)
+    assert back.dt == 0 and list(back.input_labels) == ["a", "b"]
+    for M, R in ((back.A, sysc.A), (back.B, sysc.B), (back.C, sysc.C), (back.D, sysc.D)):
+        np.testing.assert_allclose(M, R, rtol=1e-7, atol=1e-7 * np.max(np.abs(R)))
+    for f in (1.0, 300.0, 3000.0):
+        np.testing.assert_allclose(back(2j * np.pi * f), sysc(2j * np.pi * f), rtol=1e-8)
+
+
+def test_tustin_inverse_recovers_the_pid_exactly():
+    from ssamb.config import load_config
+    from ssamb.sim.controller import pid_continuous, pid_discrete
+
+    cfg = load_config()
+    pid = pid_discrete(cfg)
+    pc = to_continuous(pid, "tustin")
+    ref = pid_continuous(cfg)
+    for f in (1.0, 100.0, 2000.0, 3e4):
+        s = 2j * np.pi * f
+        np.testing.assert_allclose(pc(s), ref(s), rtol=1e-9)
+    # the Tustin conversion is exact on the warped frequency axis, not on the physical one
+    err_w = d2c_error(pid, pc, warp=True)
+    assert err_w["max_abs_mag_db"] < 1e-9 and err_w["max_abs_phase_deg"] < 1e-7
+    err = d2c_error(pid, pc, freqs_hz=[10.0, 1e3, 4e4])
+    assert abs(err["mag_db"][0]).max() < 1e-4 and abs(err["phase_deg"][-1]).max() > 0.1
+
+
+def test_d2c_errors_for_bad_poles():
+    neg = control.ss([[-0.5]], [[1.0]], [[1.0]], [[0.0]], DT)
+    with pytest.raises(ValueError, match="negative real"):
+        to_continuous(neg, "zoh")
+    to_continuous(neg, "tustin")  # fine
+    m1 = control.ss([[-1.0]], [[1.0]], [[1.0]], [[0.0]], DT)
+    with pytest.raises(ValueError, match="-1"):
+        to_continuous(m1, "tustin")
+    with pytest.raises(ValueError):
+        to_continuous(control.ss([[-1.0]], [[1.0]], [[1.0]], [[0.0]]), "tustin")
+
+
+@pytest.mark.parametrize("method", ["tustin", "zoh"])
+def test_pole_sensitivity_is_about_fs_and_matches_finite_difference(method):
+    a = 0.999
+    sysd = control.ss([[a]], [[1.0]], [[1.0]], [[0.0]], DT)
+    sens = d2c_pole_sensitivity(sysd, method)
+    assert 0.99 < sens["gain_over_fs"][0] < 1.01
+    eps = 1e-7
+    s0 = to_continuous(sysd, method).A[0, 0]
+    s1 = to_continuous(control.ss([[a + eps]], [[1.0]], [[1.0]], [[0.0]], DT), method).A[0, 0]
+    np.testing.assert_allclose(abs(s1 - s0) / eps, sens["gain"][0], rtol=1e-4)
+
+
+def test_to_continuous_keeps_closed_loop_stability():
+    plant, amp, ss = _affine_models()
+    pid = _pi(2000.0, 20.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cl = assemble_closed_loop(plant, amp, ss, pid, pid)
+    clc = to_continuous(cl, "tustin")
+    assert np.max(np.linalg.eigvals(clc.A).real) < 0
+    assert list(clc.output_labels) == list(CL_OUTPUTS)
