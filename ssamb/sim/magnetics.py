@@ -58,6 +58,9 @@ __all__ = ["h_anhysteretic", "mmf_anhysteretic", "mmf", "mmf_update", "flux_from
            "coil_current", "play_update", "MAX_PLAY"]
 
 MAX_PLAY = 16
+# compile the per-sample helper without the numba runtime (no reference counting of its array
+# arguments on every call; ``_nrt`` is a private numba option, see kernel.py)
+_NO_NRT = {"_nrt": False} if hasattr(nb.core.options.DefaultOptions, "_nrt") else {}
 # numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
 # params.py (the P_* layout) or a compiled helper imported from another module, change this
 # file too (or clear __pycache__), or stale machine code with old constants is reused.
@@ -132,14 +135,15 @@ def mmf(phi, gsum, z, p):
     return f, df
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=True)
-def mmf_update(phi, gsum, z, p):
+@nb.njit(cache=True, error_model="numpy", fastmath=True, **_NO_NRT)
+def mmf_update(phi, gsum, z, j, p):
     r""":func:`play_update` followed by :func:`mmf` in one pass over the play operators.
 
     After the update every play operator is in its elastic range, :math:`|B - z_k| \le r_k`,
     so the hysteresis adds the constant slope :math:`\sum_k l_{fe} H_c/(K r_k A_p)`
-    (``P_HYST_DF``) to :math:`dF/d\Phi`. Returns ``(F, dF/dphi)`` like :func:`mmf`; ``z`` is
-    updated in place.
+    (``P_HYST_DF``) to :math:`dF/d\Phi`. Returns ``(F, dF/dphi)`` like :func:`mmf`; the play
+    states of this magnet, ``z[j, :]``, are updated in place (the kernel's hot path: no array
+    view is created, and the function runs without the numba runtime, see ``_NO_NRT``).
     """
     f, df = mmf_anhysteretic(phi, gsum, p)
     if p[P_HYST] > 0.0:
@@ -148,12 +152,12 @@ def mmf_update(phi, gsum, z, p):
         lw = p[P_LFE] * p[P_HC] / n
         for k in range(n):
             r = p[P_PLAY_R0 + k]
-            zk = z[k]
+            zk = z[j, k]
             if zk < b - r:
                 zk = b - r
             elif zk > b + r:
                 zk = b + r
-            z[k] = zk
+            z[j, k] = zk
             f += lw * (b - zk) * p[P_PLAY_INVR0 + k]
         df += p[P_HYST_DF]
     return f, df
