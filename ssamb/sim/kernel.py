@@ -37,10 +37,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .magnetics import MAX_PLAY, gap_sum, mmf_update
-# numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
-# params.py (the P_* layout) or a compiled helper imported from another module, change this
-# file too (or clear __pycache__), or stale machine code with old constants is reused.
+from .magnetics import MAX_PLAY, NO_NRT, gap_sum, mmf_update
 from .params import (MU0, P_AP, P_CC, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_CLEAR, P_COSA,
                      P_DEADTIME, P_DELAY_X, P_DELAY_Y, P_DMAX, P_DMIN, P_FS, P_G0, P_GAIN_X,
                      P_GAIN_Y, P_GE, P_GRAV, P_IBIAS, P_IREF_MAX, P_KC, P_KI_PA, P_KP_PA, P_LEQ,
@@ -48,13 +45,12 @@ from .params import (MU0, P_AP, P_CC, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_CLEAR, P_
                      P_R, P_SS_ALPHA, P_SS_IDEAL, P_SS_ORDER, P_SS_POLY, P_SS_GATE, P_SS_GAIN, P_SS_MIN_DD, P_SS_OFF, P_SS_W, P_SUBSTEPS,
                      P_TPWM, P_UMAX, P_V, P_XCOUP, P_XS_BW)
 
-# Hot helpers (called every sample) take arrays but never allocate: compile them without the
-# numba runtime (NRT), so that their array arguments are not reference-counted on every call
-# (two atomic operations per array argument and call, otherwise ~40 % of the kernel time).
-# ``_nrt`` is a private numba option (numba uses it for its own helpers); without it the
-# kernel is still correct, only slower.
-_NO_NRT = {"_nrt": False} if hasattr(nb.core.options.DefaultOptions, "_nrt") else {}
-_HOT = dict(cache=True, error_model="numpy", fastmath=True, **_NO_NRT)
+# numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
+# params.py (the P_* layout) or a compiled helper imported from another module, change this
+# file too (or clear __pycache__), or stale machine code with old constants is reused.
+
+# helpers called every sample: no numba runtime (see magnetics.NO_NRT), no allocation
+_HOT = dict(cache=True, error_model="numpy", fastmath=True, **NO_NRT)
 
 # ---- state vector indices ------------------------------------------------------------------
 S_PHI = 0            # 4 fluxes (Wb): ypos, yneg, xpos, xneg
@@ -390,7 +386,7 @@ def _ripple_shape(t, t_on, t_off, T):
 
 
 @nb.njit(**_HOT)
-def _dcm_update(st, p, ring_i, ring_q, ring_s, i_samp, t, tb, tq, tsg, ti):
+def _dcm_update(st, p, ring_i, ring_q, ring_s, i_samp, t, tb):
     r"""DCM self-sensing (paper section 2.1, eq. (2)) on one new ypos current sample.
 
     The DSP knows its PWM timer, so every current sample's position in the switching cycle is
@@ -446,18 +442,15 @@ def _dcm_update(st, p, ring_i, ring_q, ring_s, i_samp, t, tb, tq, tsg, ti):
     # ``tb`` (npoly x W, discrete orthonormal polynomials, see trend_basis()):
     # x~ = x - tb' (tb x); inner products of projected vectors follow from the raw ones.
     npoly = tb.shape[0]
+    first = nidx - w              # ring index of the oldest sample in the window (>= 0)
     sqq = 0.0
     sqs = 0.0
     sss = 0.0
     sqi = 0.0
     ssi = 0.0
     sii = 0.0
-    for m in range(npoly):
-        tq[m] = 0.0
-        tsg[m] = 0.0
-        ti[m] = 0.0
     for q in range(w):
-        idx = (nidx - w + q) % SS_RING
+        idx = (first + q) % SS_RING
         qq = ring_q[idx]
         sg = ring_s[idx]
         ii = ring_i[idx]
@@ -467,18 +460,22 @@ def _dcm_update(st, p, ring_i, ring_q, ring_s, i_samp, t, tb, tq, tsg, ti):
         sqi += qq * ii
         ssi += sg * ii
         sii += ii * ii
-        for m in range(npoly):
-            bm = tb[m, q]
-            tq[m] += bm * qq
-            tsg[m] += bm * sg
-            ti[m] += bm * ii
     for m in range(npoly):
-        sqq -= tq[m] * tq[m]
-        sqs -= tq[m] * tsg[m]
-        sss -= tsg[m] * tsg[m]
-        sqi -= tq[m] * ti[m]
-        ssi -= tsg[m] * ti[m]
-        sii -= ti[m] * ti[m]
+        tq = 0.0
+        tsg = 0.0
+        ti = 0.0
+        for q in range(w):
+            idx = (first + q) % SS_RING
+            bm = tb[m, q]
+            tq += bm * ring_q[idx]
+            tsg += bm * ring_s[idx]
+            ti += bm * ring_i[idx]
+        sqq -= tq * tq
+        sqs -= tq * tsg
+        sss -= tsg * tsg
+        sqi -= tq * ti
+        ssi -= tsg * ti
+        sii -= ti * ti
     # degenerate window (no ripple: amplifier saturated): hold
     if sqq < p[P_SS_MIN_DD] * 1e-3 * w:
         return
@@ -579,9 +576,6 @@ def run_chunk(p, st, z, ring_i, ring_d, ring_s, ring_x, ring_y, tb, k0, k1,
     vbar = np.zeros(4)
     fm = np.zeros(4)
     dfm = np.zeros(4)
-    tq = np.zeros(8)
-    tsg = np.zeros(8)
-    ti = np.zeros(8)
     m1 = np.zeros(4)
     m2 = np.zeros(4)
     for k in range(k0, k1):
@@ -596,7 +590,7 @@ def run_chunk(p, st, z, ring_i, ring_d, ring_s, ring_x, ring_y, tb, k0, k1,
         for j in range(4):
             isamp[j] = _coil_i(st[S_BLK + j], st[S_VOLT + j], fm[j], ge, vs, n_turns, den_i) + n_i[j, k]
         x_sens = p[P_GAIN_X] * st[S_XS] + n_x[k]
-        _dcm_update(st, p, ring_i, ring_d, ring_s, isamp[0], t, tb, tq, tsg, ti)
+        _dcm_update(st, p, ring_i, ring_d, ring_s, isamp[0], t, tb)
         if p[P_SS_IDEAL] > 0.5:
             y_ss = p[P_GAIN_Y] * st[S_Y] + n_ym[k]   # ideal y sensor instead of DCM (diagnostics)
         else:
