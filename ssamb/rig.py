@@ -1,0 +1,312 @@
+r"""A simulated rig: the nominal model plus undeclared effects and data-acquisition noise.
+
+``python -m ssamb rig SCENARIO.yaml --out DATA.npz`` (:func:`run_scenario`) reads a scenario
+file (ARCHITECTURE.md, "Scenario file"), simulates the nonlinear AMB with the scenario's effects,
+adds logging noise and writes **only what a rig logs**: the measured-data format (plus the
+optional columns ``inj_x``, ``inj_y``) and a ``meta`` that describes the excitation (kind,
+parameters, seeds, injection point, axis) but never the effects or the noise.
+
+Scenario file
+-------------
+.. code-block:: yaml
+
+    config: config.yaml            # nominal parameters, relative to the scenario file
+    experiment: {kind: multisine, point: position, axis: both, amplitude_m: 3.0e-5,
+                 f_min_hz: 5, f_max_hz: 100, f_resolution_hz: 5, periods: 10, seed: 3}
+    effects:                       # what the rig has and the model does not
+      - {name: sensor_delay, axis: both, delay_s: 2.4e-5}
+    noise: {position_m: 2.0e-8, current_a: 3.0e-4, seed: 11}
+
+Optional top-level keys: ``duration_s`` (required unless the excitation is a multisine or a
+sweep, which define their own length), ``start`` (``levitated``, the default, or ``rest``),
+``description`` and ``output: {dtype: float32}`` (store the logged signals in single
+precision, e.g. to keep a shipped data set small; ``t`` and ``fs_hz`` stay double; the
+default is ``float64``). The file is a compressed NPZ (``numpy.load`` reads it). ``experiment`` may also be the name of an experiment in the config. Effects
+follow the effect library (:mod:`ssamb.sim.effects`); an ``external_force`` file is relative
+to the scenario file.
+
+Noise model (a decision, see README "Close the loop with your rig data")
+-------------------------------------------------------------------------
+``noise`` is **data-acquisition** noise: independent white Gaussian sequences added to the
+*logged* channels only,
+
+.. math::
+
+    x_{meas} \mathrel{+}= n_1,\; y_{meas} \mathrel{+}= n_2,\; y_{ss} \mathrel{+}= n_3,
+    \quad n_{1..3} \sim \mathcal N(0, \sigma_p^2), \qquad
+    i_{c} \mathrel{+}= m_c,\; m_c \sim \mathcal N(0, \sigma_i^2)\; (c = ypos, yneg, xpos, xneg),
+
+drawn in that order (a ``7 x n`` array) from ``numpy.random.default_rng(noise.seed)``. The
+controller outputs ``u_x``, ``u_y`` are digital values inside the DSP and are logged without
+noise. The loop itself runs noise-free: in-loop sensor noise (``simulate(noise=...)``) makes the
+self-sensing loop of this DCM design delevitate at milliampere current noise and colours the
+residual of a perfect model, so a rig built that way could not show "no effect found".
+
+Seeds: the excitation seed is the experiment's ``seed`` (default: the config's ``seed``); with
+``axis: both`` the y axis uses ``seed + 7919`` (an independent realisation).
+"""
+from __future__ import annotations
+
+import math
+import numbers
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from .io import MEASURED_COLUMNS, versions
+
+__all__ = ["ScenarioError", "load_scenario", "rig_data", "run_scenario", "NOISE_KEYS"]
+
+#: top-level keys of a scenario file: (required, optional)
+_TOP_REQUIRED = ("experiment",)
+_TOP_OPTIONAL = ("config", "effects", "noise", "duration_s", "start", "description", "output")
+#: keys of the ``output`` mapping and their allowed values
+_OUTPUT_DTYPES = ("float64", "float32")
+#: keys of the ``noise`` mapping
+NOISE_KEYS = ("position_m", "current_a", "seed")
+#: logged channels that receive position / current noise, in the order of the noise draws
+_POSITION_CHANNELS = ("x_meas", "y_meas", "y_ss")
+_CURRENT_CHANNELS = ("i_ypos", "i_yneg", "i_xpos", "i_xneg")
+
+
+class ScenarioError(ValueError):
+    """A scenario file is invalid; the message names the file and the key."""
+
+
+def _number(where: str, value: Any, *, nonneg: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(float(value)):
+        raise ScenarioError(f"{where}: must be a finite number (got {value!r})")
+    if nonneg and float(value) < 0:
+        raise ScenarioError(f"{where}: must be >= 0 (got {value!r})")
+    return float(value)
+
+
+def _validate_noise(src: str, noise: Any) -> dict | None:
+    if noise is None:
+        return None
+    if not isinstance(noise, Mapping):
+        raise ScenarioError(f"{src}: key 'noise' must be a mapping with {', '.join(NOISE_KEYS)}")
+    unknown = [k for k in noise if k not in NOISE_KEYS]
+    if unknown:
+        raise ScenarioError(f"{src}: key 'noise.{unknown[0]}' is unknown (allowed: {', '.join(NOISE_KEYS)})")
+    out = {k: _number(f"{src}: key 'noise.{k}'", noise.get(k, 0.0), nonneg=True)
+           for k in ("position_m", "current_a")}
+    if out["position_m"] > 0 or out["current_a"] > 0:
+        if "seed" not in noise:
+            raise ScenarioError(f"{src}: key 'noise.seed' is missing (required when noise is nonzero)")
+    seed = noise.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or int(seed) < 0:
+        raise ScenarioError(f"{src}: key 'noise.seed' must be an integer >= 0 (got {seed!r})")
+    out["seed"] = int(seed)
+    return out
+
+
+def load_scenario(path: str | Path) -> dict:
+    """Read and validate a scenario file.
+
+    Returns a dict with ``cfg`` (the validated nominal config), ``excitation`` (a spec without
+    its seed), ``seed`` (the excitation seed), ``duration_s``, ``start``, ``effects`` (validated,
+    flat), ``noise`` (or None) and ``base_dir`` (the scenario's directory).
+
+    Raises
+    ------
+    ScenarioError
+        Unknown or missing keys, an unknown effect or a missing effect parameter, bad noise;
+        the message names the file and the key.
+    """
+    from .config import ConfigError, load_config
+    from .sim.effects import EffectError, validate_effect
+
+    path = Path(path)
+    src = str(path)
+    if not path.exists():
+        raise ScenarioError(f"{src}: scenario file not found")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            sc = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f"{src}: not valid YAML ({' '.join(str(exc).split())})") from None
+    if not isinstance(sc, Mapping):
+        raise ScenarioError(f"{src}: top level must be a mapping")
+    for k in _TOP_REQUIRED:
+        if k not in sc:
+            raise ScenarioError(f"{src}: key '{k}' is missing (required)")
+    unknown = [k for k in sc if k not in _TOP_REQUIRED + _TOP_OPTIONAL]
+    if unknown:
+        raise ScenarioError(f"{src}: key '{unknown[0]}' is unknown (allowed: "
+                            f"{', '.join(_TOP_REQUIRED + _TOP_OPTIONAL)})")
+    base = path.resolve().parent
+    cfg_path = sc.get("config")
+    if cfg_path is not None:
+        cfg_path = Path(cfg_path)
+        if not cfg_path.is_absolute():
+            cfg_path = base / cfg_path
+    try:
+        cfg = load_config(cfg_path)
+    except ConfigError as exc:
+        raise ScenarioError(f"{src}: key 'config': {exc}") from None
+
+    exp = sc["experiment"]
+    duration = sc.get("duration_s")
+    start = sc.get("start")
+    if isinstance(exp, str):
+        if exp not in cfg["experiments"]:
+            raise ScenarioError(f"{src}: key 'experiment': '{exp}' is not an experiment of the config "
+                                f"(known: {', '.join(cfg['experiments'])})")
+        e = cfg["experiments"][exp]
+        spec = dict(e["excitation"])
+        duration = e["duration_s"] if duration is None else duration
+        start = e["start"] if start is None else start
+        seed = int(spec.pop("seed", cfg["seed"])) + int(spec.pop("seed_offset", 0))
+    elif isinstance(exp, Mapping):
+        spec = dict(exp)
+        if "kind" not in spec:
+            raise ScenarioError(f"{src}: key 'experiment.kind' is missing (none, pulses, multisine, sweep, step)")
+        seed = spec.pop("seed", cfg["seed"])
+        if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or int(seed) < 0:
+            raise ScenarioError(f"{src}: key 'experiment.seed' must be an integer >= 0 (got {seed!r})")
+        seed = int(seed) + int(spec.pop("seed_offset", 0))
+    else:
+        raise ScenarioError(f"{src}: key 'experiment' must be a mapping (an excitation spec) or an experiment name")
+    spec.setdefault("point", "position")
+    spec.setdefault("axis", "y")
+    if duration is not None:
+        duration = _number(f"{src}: key 'duration_s'", duration, nonneg=True)
+        if duration <= 0:
+            raise ScenarioError(f"{src}: key 'duration_s' must be > 0")
+    elif spec["kind"] not in ("multisine", "sweep"):
+        raise ScenarioError(f"{src}: key 'duration_s' is missing (required for excitation kind '{spec['kind']}')")
+    start = start or "levitated"
+    if start not in ("levitated", "rest"):
+        raise ScenarioError(f"{src}: key 'start' must be 'levitated' or 'rest' (got {start!r})")
+    # the excitation itself (named keys, ranges) is checked by the signal generator
+    from .signals import make_excitation
+
+    try:
+        make_excitation(spec, float(cfg["controller"]["fs_hz"]), duration, seed)
+    except ValueError as exc:
+        raise ScenarioError(f"{src}: key 'experiment': {exc}") from None
+
+    effects_raw = sc.get("effects") or []
+    if not isinstance(effects_raw, list):
+        raise ScenarioError(f"{src}: key 'effects' must be a list of effects")
+    effects = []
+    for i, e in enumerate(effects_raw):
+        if not isinstance(e, Mapping):
+            raise ScenarioError(f"{src}: key 'effects[{i}]' must be a mapping with 'name' and its parameters")
+        try:
+            flat = validate_effect(e)
+        except EffectError as exc:
+            raise ScenarioError(f"{src}: key 'effects[{i}]': {exc}") from None
+        if flat["name"] == "external_force" and "file" in flat:
+            f = Path(flat["file"])
+            f = f if f.is_absolute() else base / f
+            if not f.exists():
+                raise ScenarioError(f"{src}: key 'effects[{i}].file': '{f}' not found")
+            flat["file"] = str(f)
+        effects.append(flat)
+    noise = _validate_noise(src, sc.get("noise"))
+    output = sc.get("output") or {}
+    if not isinstance(output, Mapping) or any(k != "dtype" for k in output):
+        raise ScenarioError(f"{src}: key 'output' must be a mapping with the only key 'dtype'")
+    dtype = output.get("dtype", "float64")
+    if dtype not in _OUTPUT_DTYPES:
+        raise ScenarioError(f"{src}: key 'output.dtype' must be one of {', '.join(_OUTPUT_DTYPES)} (got {dtype!r})")
+    return {"cfg": cfg, "dtype": dtype, "excitation": spec, "seed": seed, "duration_s": duration, "start": start,
+            "effects": effects, "noise": noise, "base_dir": str(base),
+            "description": sc.get("description")}
+
+
+def add_logging_noise(data: Mapping[str, np.ndarray], noise: Mapping | None) -> dict:
+    """Return the logged channels with data-acquisition noise added (see module docstring)."""
+    out = {k: np.asarray(v, float).copy() for k, v in data.items()}
+    if not noise:
+        return out
+    n = len(out["t"])
+    rng = np.random.default_rng(int(noise["seed"]))
+    draws = rng.standard_normal((len(_POSITION_CHANNELS) + len(_CURRENT_CHANNELS), n))
+    for row, c in enumerate(_POSITION_CHANNELS):
+        out[c] = out[c] + noise["position_m"] * draws[row]
+    for row, c in enumerate(_CURRENT_CHANNELS, start=len(_POSITION_CHANNELS)):
+        out[c] = out[c] + noise["current_a"] * draws[row]
+    return out
+
+
+def rig_data(scenario: Mapping, progress: bool = False) -> tuple[dict, dict]:
+    """Simulate a validated scenario (:func:`load_scenario`); return ``(arrays, meta)`` as logged.
+
+    ``arrays`` holds exactly the measured-data columns, ``fs_hz``, ``inj_x`` and ``inj_y``;
+    ``meta`` describes the excitation and the start (never the effects nor the noise).
+    """
+    from .config import config_hash
+    from .sim import simulate
+
+    cfg = scenario["cfg"]
+    res = simulate(cfg, duration_s=scenario["duration_s"], excitation=scenario["excitation"],
+                   start=scenario["start"], effects=scenario["effects"], seed=scenario["seed"],
+                   progress=progress, effects_base_dir=scenario["base_dir"])
+    keep = list(MEASURED_COLUMNS) + ["inj_x", "inj_y"]
+    logged = add_logging_noise({k: res.data[k] for k in keep}, scenario["noise"])
+    logged["fs_hz"] = np.asarray(float(res.data["fs_hz"]))
+    exc = dict(res.meta["excitation"])
+    exc["seed"] = scenario["seed"]          # base seed (x; y uses seed + 7919 when axis is both)
+    meta = {
+        "kind": "rig",
+        "source": "python -m ssamb rig (simulated rig)",
+        "excitation": exc,
+        "start": scenario["start"],
+        "duration_s": float(len(logged["t"]) / float(logged["fs_hz"])),
+        "fs_hz": float(logged["fs_hz"]),
+        "settle_s": float(res.meta["settle_s"]),
+        "config_hash": config_hash(cfg),
+        "versions": versions(),
+    }
+    if scenario.get("description"):
+        meta["description"] = str(scenario["description"])
+    return logged, meta
+
+
+def run_scenario(scenario_path: str | Path, out_path: str | Path, progress: bool = True) -> None:
+    """Simulate the rig described by a scenario file and write its data (atomically).
+
+    Parameters
+    ----------
+    scenario_path : path
+        Scenario YAML (ARCHITECTURE.md, "Scenario file").
+    out_path : path
+        Output ``.npz`` in the measured-data format (a ``.json`` sidecar with ``meta`` is
+        written beside it).
+    progress : bool
+        Show the simulator's progress bar.
+
+    Raises
+    ------
+    ScenarioError
+        Invalid scenario (nothing is written).
+    """
+    out = Path(out_path)
+    if out.suffix != ".npz":
+        raise ScenarioError(f"--out {out}: must end in .npz")
+    sc = load_scenario(scenario_path)
+    arrays, meta = rig_data(sc, progress=progress)
+    if sc.get("dtype", "float64") == "float32":
+        arrays = {k: (v.astype(np.float32) if k not in ("t", "fs_hz") else v) for k, v in arrays.items()}
+    save_measured_compressed(out, arrays, meta)
+
+
+def save_measured_compressed(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any]) -> None:
+    """Like :func:`ssamb.io.save_measured` (validated first, atomic, JSON sidecar), compressed."""
+    import json
+
+    from .io import _jsonable, atomic_path, validate_measured, write_json
+
+    path = Path(path)
+    validate_measured(arrays, str(path))
+    payload = {k: np.asarray(v) for k, v in arrays.items()}
+    payload["meta"] = np.asarray(json.dumps(meta, default=_jsonable, sort_keys=True))
+    with atomic_path(path, suffix=".npz") as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **payload)
+    write_json(path.with_suffix(".json"), meta)
