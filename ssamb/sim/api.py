@@ -384,7 +384,7 @@ def simulate(cfg: Mapping, experiment: str | None = None, *, duration_s: float |
                               record_fine=record_fine, progress=progress, track_ripple=track_ripple,
                               desc=f"simulate {experiment or ''}".strip())
     sl = slice(n_settle, n_tot)
-    data = {name: out[i, sl].copy() for i, name in enumerate(OUT_NAMES)}
+    data = {name: out[i, sl] for i, name in enumerate(OUT_NAMES)}   # views, no copies
     data["t"] = data["t"] - settle
     data["r_x"] = sig["r_x"]
     data["r_y"] = sig["r_y"]
