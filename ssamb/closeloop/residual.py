@@ -1,0 +1,481 @@
+r"""Residual analysis: errors, offsets, lines, excited-line ratios, cross-axis, ripple, whiteness.
+
+The residual of a view :math:`v` is :math:`e_v = y_v - \hat y_v` (measured minus model).
+:func:`compute_features` turns it, over one analysis segment (the fitting part or the held-out
+part), into the evidence the effect signatures read:
+
+* **noise floor** per view (:func:`ssamb.closeloop.spectra.noise_floor`) and its white-
+  equivalent :math:`\sigma_v`, never below a floor (a noise-free logged channel);
+* **offsets** :math:`\hat\mu_v` with :math:`z_v = \hat\mu_v / \mathrm{SE}_v`;
+* **lines** the excitation lacks (off-grid for a periodic excitation), refined in frequency,
+  with the phasor in every view;
+* **excited-line residual** :math:`\chi^2_v = \sum_k |E_v(k)|^2 / S_v(k)` over the excited
+  bins (the frequency-domain form of the residual-input cross-correlation test; under noise
+  alone it is Gamma(K, 1));
+* **sensor-path ratio** per excited axis, the measured over the modelled ratio of sensor to
+  coil current at the excited lines,
+
+  .. math:: R(f) = \frac{Y_s(f)/Y_i(f)}{\hat Y_s(f)/\hat Y_i(f)}, \qquad
+            \ln R(f) \approx \alpha - j 2\pi f \tau ,
+
+  whose flat log-gain :math:`\alpha` is a sensor gain error and whose phase slope
+  :math:`\tau` a sensor delay (weighted least squares, standard errors inflated by the
+  reduced :math:`\chi^2` of the fit);
+* **cross-axis** evidence: residual in axis b coherent with the excitation of axis a beyond
+  what b's own nominal response explains (an F-test on a smooth two-input regression across
+  the excited lines);
+* **ripple distortion**: residual of the coil currents on the periodic grid above
+  ``ripple_min_hz`` (where the excitation puts nothing but the PWM sampling pattern);
+* **whiteness**: Ljung-Box :math:`Q = n(n+2)\sum_{k=1}^{L} \hat\rho_k^2/(n-k)`, :math:`\chi^2_L`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from .data import CHANNELS, CURRENT_CHANNELS, VIEWS, unit_of
+from .spectra import (Frame, dft, find_peaks_bins, fit_line, noise_floor, offset, welch_transfer,
+                      white_sigma)
+
+__all__ = ["Features", "compute_features", "channel_errors", "ljung_box", "consistency",
+           "xcorr_with_bounds"]
+
+#: views of each axis (for the cross-axis and unbalance tests)
+AXIS_VIEWS = {"x": ("x_meas", "d_x", "u_x"), "y": ("y_ss", "y_meas", "d_y", "u_y")}
+#: the counterpart of a view in the other axis
+COUNTERPART = {"x_meas": "y_ss", "d_x": "d_y", "u_x": "u_y", "y_ss": "x_meas", "y_meas": "x_meas",
+               "d_y": "d_x", "u_y": "u_x"}
+
+
+@dataclass
+class Features:
+    """Evidence extracted from a residual over one segment (see module docstring)."""
+
+    frame: Frame
+    sigma: dict
+    S: dict
+    X: dict
+    offsets: dict = field(default_factory=dict)
+    lines: list = field(default_factory=list)
+    excited_residual: dict = field(default_factory=dict)
+    ratios: dict = field(default_factory=dict)
+    cross: dict = field(default_factory=dict)
+    ripple: dict = field(default_factory=dict)
+    whiteness: dict = field(default_factory=dict)
+    sigma_ch: dict = field(default_factory=dict)
+    floor: dict = field(default_factory=dict)
+    excited_f_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def _floor(view: str, model_seg: np.ndarray, settings) -> float:
+    absf = settings.floor_position_m if unit_of(view) == "m" else settings.floor_current_a
+    return max(absf, settings.floor_relative * float(np.std(model_seg)))
+
+
+def channel_errors(meas: dict, model: dict, sl: slice, sigma: dict | None = None) -> dict:
+    r"""Held-out error of every channel and of the four coil currents together.
+
+    ``rms`` is :math:`\sqrt{\overline{e^2}}` and ``fit_pct`` the NRMSE fit
+    :math:`100\,(1 - \|y - \hat y\| / \|y - \bar y\|)`; ``currents`` pools the four coils.
+    """
+    out = {}
+    for c in CHANNELS:
+        y, yh = meas[c][sl], model[c][sl]
+        e = y - yh
+        den = np.linalg.norm(y - y.mean())
+        d = {"rms": float(np.sqrt(np.mean(e ** 2))),
+             "fit_pct": float(100.0 * (1.0 - np.linalg.norm(e) / den)) if den > 0 else float("nan"),
+             "mean": float(np.mean(e))}
+        if sigma is not None and c in sigma:
+            d["noise_rms"] = float(sigma[c])
+        out[c] = d
+    e = np.concatenate([meas[c][sl] - model[c][sl] for c in CURRENT_CHANNELS])
+    y = np.concatenate([meas[c][sl] - meas[c][sl].mean() for c in CURRENT_CHANNELS])
+    cur = {"rms": float(np.sqrt(np.mean(e ** 2))),
+           "fit_pct": float(100.0 * (1.0 - np.linalg.norm(e) / np.linalg.norm(y))) if np.linalg.norm(y) > 0 else float("nan"),
+           "per_coil": {c: out[c] for c in CURRENT_CHANNELS}}
+    if sigma is not None:
+        cur["noise_rms"] = float(np.sqrt(np.mean([sigma[c] ** 2 for c in CURRENT_CHANNELS])))
+    out["currents"] = cur
+    return out
+
+
+def ljung_box(e: np.ndarray, lags: int) -> tuple[float, float, np.ndarray]:
+    r"""Ljung-Box statistic, its :math:`\chi^2_L` p-value and the autocorrelation :math:`\hat\rho_{1..L}`."""
+    e = np.asarray(e, float) - np.mean(e)
+    n = len(e)
+    nfft = 1 << int(math.ceil(math.log2(2 * n)))
+    F = np.fft.rfft(e, nfft)
+    ac = np.fft.irfft(np.abs(F) ** 2, nfft)[: lags + 1]
+    if ac[0] <= 0:
+        return 0.0, 1.0, np.zeros(lags)
+    rho = ac[1:] / ac[0]
+    k = np.arange(1, lags + 1)
+    q = float(n * (n + 2) * np.sum(rho ** 2 / (n - k)))
+    return q, float(stats.chi2.sf(q, lags)), rho
+
+
+def xcorr_with_bounds(e: np.ndarray, u: np.ndarray, fs_hz: float, f_max_hz: float, max_lag_s: float,
+                      conf: float = 0.99) -> dict:
+    r"""Cross-correlation of a residual with an input, decimated to ~10 x ``f_max_hz``.
+
+    Returns lags (s), :math:`\hat r_{eu}(\tau)` and the bound :math:`z_{1-(1-c)/2}/\sqrt n` that
+    a white residual stays within with probability ``conf`` at each lag.
+    """
+    from scipy import signal as sps
+
+    q = max(1, int(fs_hz / (10.0 * max(f_max_hz, 1.0))))
+    if q > 1:
+        sos = sps.butter(8, 0.8 / q, output="sos")
+        e = sps.sosfiltfilt(sos, e)[::q]
+        u = sps.sosfiltfilt(sos, u)[::q]
+    e = e - e.mean()
+    u = u - u.mean()
+    n = len(e)
+    m = min(int(max_lag_s * fs_hz / q), n - 1)
+    denom = math.sqrt(np.sum(e * e) * np.sum(u * u)) or 1.0
+    full = np.correlate(e, u, mode="full")[n - 1 - m: n + m] / denom
+    return {"lag_s": np.arange(-m, m + 1) * q / fs_hz, "r": full,
+            "bound": float(stats.norm.ppf(0.5 + conf / 2) / math.sqrt(n))}
+
+
+def _line_floor(frame: Frame, S: np.ndarray, fl: float) -> np.ndarray:
+    """Noise floor plus a line of amplitude ``fl`` (the reproducibility floor) in every bin."""
+    return S + (fl * float(np.sum(frame.window)) / 2.0) ** 2
+
+
+def _gamma_p(chi: float, k: int) -> float:
+    return float(stats.gamma.sf(chi, k)) if k > 0 else 1.0
+
+
+def _gamma_logp(chi: float, k: int) -> float:
+    """log of the Gamma(k, 1) survival function, with the large-argument asymptote where it underflows."""
+    if k <= 0:
+        return 0.0
+    lp = float(stats.gamma.logsf(chi, k))
+    if not math.isfinite(lp):
+        lp = -chi + (k - 1) * math.log(chi) - math.lgamma(k)
+    return lp
+
+
+def _excited_data(rec, frame: Frame, meas_v: dict, model_v: dict, S: dict, X: dict, Xm: dict, Xh: dict,
+                  fl: dict | None = None):
+    """Per excited axis: bins, excitation DFT, measured/model values and noise variance per view."""
+    out = {}
+    if frame.periodic:
+        for ax, kb in frame.excited.items():
+            if len(kb) == 0:
+                continue
+            Sa = np.fft.rfft(rec.signal[ax][frame.i0:frame.i0 + frame.n])[kb]
+            d = {"f_hz": frame.f_hz[kb], "bins": kb, "Hm": {}, "Hh": {}, "var": {}, "E": {}, "Enoise": {}}
+            for v in VIEWS:
+                d["Hm"][v] = Xm[v][kb] / Sa
+                d["Hh"][v] = Xh[v][kb] / Sa
+                d["var"][v] = S[v][kb] / np.abs(Sa) ** 2
+                d["E"][v] = X[v][kb] / Sa            # residual per unit excitation
+                d["Enoise"][v] = d["var"][v]
+            out[ax] = d
+        return out
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    nper = int(2 ** max(8, min(16, int(math.log2(max(frame.n // 8, 256))))))
+    for ax in rec.excited_axes:
+        s = rec.signal[ax][seg]
+        wm = welch_transfer(s, {v: meas_v[v][seg] for v in VIEWS}, rec.fs_hz, nper)
+        wh = welch_transfer(s, {v: model_v[v][seg] for v in VIEWS}, rec.fs_hz, nper)
+        # the noise of a measured transfer is the part of the residual not coherent with the
+        # excitation (the model's own nonlinear response is shared by data and model)
+        wr = welch_transfer(s, {v: meas_v[v][seg] - model_v[v][seg] for v in VIEWS}, rec.fs_hz, nper)
+        sel = (wm["f_hz"] > 0) & (wm["Sss"] > 1e-3 * wm["Sss"].max())
+        if not np.any(sel):
+            continue
+        d = {"f_hz": wm["f_hz"][sel], "bins": np.flatnonzero(sel), "Hm": {}, "Hh": {}, "var": {}, "E": {}, "Enoise": {},
+             # neighbouring Hann bins are correlated: a chi^2 sum over k bins is ~ 1.5 Gamma(k/1.5)
+             "chi_scale": 1.5}
+        for v in VIEWS:
+            d["Hm"][v] = wm["H"][v][sel]
+            d["Hh"][v] = wh["H"][v][sel]
+            # never below the reproducibility floor, seen as white noise of that level
+            v_fl = 2.0 * (fl or {}).get(v, 0.0) ** 2 / rec.fs_hz / (wr["k_eff"] * wm["Sss"][sel])
+            d["var"][v] = np.maximum(np.maximum(wr["var"][v][sel], v_fl), 1e-300)
+            d["E"][v] = d["Hm"][v] - d["Hh"][v]
+            d["Enoise"][v] = d["var"][v]
+        out[ax] = d
+    return out
+
+
+def _isolated_excited_lines(frame: Frame, X: dict, S: dict, exd: dict, alpha: float, isolation: float = 100.0) -> list:
+    """Lines that sit on an excited line but stand out of it: residual at one excited bin, in
+    both axes, ``isolation`` times (in chi^2) above the median of the other excited bins
+    (an unbalance spinning at an excited frequency; periodic frames only)."""
+    kb = np.unique(np.concatenate([d["bins"] for d in exd.values()]))
+    if len(kb) < 5:
+        return []
+    thr = math.log(2 * len(kb) / alpha)
+    chi = {v: np.abs(X[v][kb]) ** 2 / S[v][kb] for v in VIEWS}
+    out = []
+    for i, k in enumerate(kb):
+        ok = True
+        for v in ("d_x", "d_y"):
+            others = np.delete(chi[v], i)
+            if not (chi[v][i] > thr and chi[v][i] > isolation * max(np.median(others), 1.0)):
+                ok = False
+        if ok:
+            out.append({"f_hz": float(frame.f_hz[k]), "phasor": {v: complex(2 * X[v][k] / frame.n) for v in VIEWS},
+                        "se": {v: math.sqrt(2 * S[v][k]) / frame.n for v in VIEWS},
+                        "chi2": {v: float(chi[v][i]) for v in VIEWS}, "views_detected": ["d_x", "d_y"],
+                        "peak_ratio": float(min(chi["d_x"][i], chi["d_y"][i])), "threshold": thr,
+                        "on_excited_line": True})
+    return out
+
+
+def _ratio_fit(f_hz, Hm_s, Hm_a, Hh_s, Hh_a, var_s, var_a, min_snr: float = 10.0) -> dict | None:
+    r"""Weighted fit of :math:`\ln R = \alpha - j 2\pi f\tau` to the sensor-path ratio."""
+    snr_s = np.abs(Hm_s) ** 2 / var_s
+    snr_a = np.abs(Hm_a) ** 2 / var_a
+    ok = (snr_s > min_snr ** 2) & (snr_a > min_snr ** 2) & (np.abs(Hh_s) > 0) & (np.abs(Hh_a) > 0)
+    if np.count_nonzero(ok) < 3:
+        return None
+    f = f_hz[ok]
+    R = (Hm_s[ok] / Hm_a[ok]) / (Hh_s[ok] / Hh_a[ok])
+    var_ln = var_s[ok] / np.abs(Hm_s[ok]) ** 2 + var_a[ok] / np.abs(Hm_a[ok]) ** 2
+    w = 2.0 / var_ln                       # per real component
+    order = np.argsort(f)
+    f, R, w = f[order], R[order], w[order]
+    lnr = np.log(np.abs(R))
+    ph = np.unwrap(np.angle(R))
+    om = 2 * np.pi * f
+    k = len(f)
+    alpha = float(np.sum(w * lnr) / np.sum(w))
+    tau = float(-np.sum(w * om * ph) / np.sum(w * om ** 2))
+    chi_re = float(np.sum(w * (lnr - alpha) ** 2))
+    chi_im = float(np.sum(w * (ph + om * tau) ** 2))
+    se_a0 = math.sqrt(1.0 / np.sum(w))
+    se_t0 = math.sqrt(1.0 / np.sum(w * om ** 2))
+    se_a = se_a0 * math.sqrt(max(1.0, chi_re / max(k - 1, 1)))
+    se_t = se_t0 * math.sqrt(max(1.0, chi_im / max(k - 1, 1)))
+    return {"f_hz": f, "R": R, "var_ln": 2.0 / w, "alpha": alpha, "se_alpha": se_a, "z_alpha": alpha / se_a,
+            "gain": math.exp(alpha), "tau_s": tau, "se_tau_s": se_t, "z_tau": tau / se_t,
+            "chi2_alpha": (alpha / se_a0) ** 2, "chi2_tau": (tau / se_t0) ** 2,
+            "chi2_gain": chi_re, "chi2_phase": chi_im, "dof": k - 1, "n_lines": k}
+
+
+def _cross_test(exd: dict, a: str, b: str, degree: int = 2) -> dict | None:
+    r"""Residual in axis ``b`` explained by axis ``a`` beyond b's own nominal response.
+
+    For each view v of b, at the excited lines: :math:`E_v(k) = \sum_i c_i \phi_i(f_k)\hat Y_v(k)
+    + \sum_i d_i \phi_i(f_k) \hat Y_{a}(k)` with :math:`\phi_i = (f/f_{max})^i` and
+    :math:`\hat Y_a` the model's counterpart view of axis a; F-test of :math:`d = 0` (weights
+    :math:`1/S_v(k)`). When b is not excited, the test is simply the residual of b at a's
+    excited lines (:math:`\chi^2`, Gamma distribution).
+    """
+    src = exd.get(a)
+    if src is None:
+        return None
+    f = src["f_hz"]
+    fn = f / max(f.max(), 1e-12)
+    best = None
+    for v in AXIS_VIEWS[b]:
+        E = src["E"][v]
+        Sn = src["Enoise"][v]
+        wts = 1.0 / np.sqrt(Sn)
+        own = src["Hh"][v]
+        oth = src["Hh"][COUNTERPART[v]]
+        k = len(f)
+        if b not in exd:
+            chi = float(np.sum(np.abs(E) ** 2 / Sn))
+            c = src.get("chi_scale", 1.0)
+            lp = _gamma_logp(chi / c, max(int(round(k / c)), 1))
+            res = {"view": v, "p": math.exp(lp), "logp": lp, "stat": chi, "kind": "chi2", "k": k,
+                   "delta_chi2": max(chi - k, 0.0)}
+        else:
+            if 2 * k <= 4 * (degree + 1) + 2:
+                continue
+            own_n = own / (np.sqrt(np.mean(np.abs(own) ** 2)) or 1.0)
+            oth_n = oth / (np.sqrt(np.mean(np.abs(oth) ** 2)) or 1.0)
+            A0 = np.column_stack([fn ** i * own_n for i in range(degree + 1)]) * wts[:, None]
+            A1 = np.column_stack([fn ** i * oth_n for i in range(degree + 1)]) * wts[:, None]
+            y = E * wts
+
+            def rss(A):
+                Ar = np.vstack([np.hstack([A.real, -A.imag]), np.hstack([A.imag, A.real])])
+                yr = np.concatenate([y.real, y.imag])
+                sol, *_ = np.linalg.lstsq(Ar, yr, rcond=None)
+                return float(np.sum((yr - Ar @ sol) ** 2)), Ar.shape[1]
+
+            r0, p0 = rss(A0)
+            r1, p1 = rss(np.hstack([A0, A1]))
+            n_obs = 2 * k
+            q = p1 - p0
+            dof = n_obs - p1
+            if r1 <= 0 or dof <= 0:
+                continue
+            F = ((r0 - r1) / q) / (r1 / dof)
+            lp = float(stats.f.logsf(F, q, dof))
+            res = {"view": v, "p": math.exp(lp), "logp": lp, "stat": float(F), "kind": "F", "q": q, "dof": dof,
+                   "explained": float((r0 - r1) / r0) if r0 > 0 else 0.0,
+                   "delta_chi2": float(max(r0 - r1 - q, 0.0))}
+        if best is None or res["logp"] < best["logp"]:
+            best = res
+    if best is not None:
+        best["n_views"] = len(AXIS_VIEWS[b])
+    return best
+
+
+def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, meas_ch: dict | None = None,
+                     model_ch: dict | None = None, lines: bool = True) -> Features:
+    """Evidence of the residual ``meas_v - model_v`` (views, whole-record arrays) over ``frame``.
+
+    ``meas_ch``/``model_ch`` (channels) add the Ljung-Box whiteness tests per channel.
+    """
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    res_v = {v: meas_v[v] - model_v[v] for v in VIEWS}
+    X, Xm, Xh, S, sigma, fl = {}, {}, {}, {}, {}, {}
+    for v in VIEWS:
+        fl[v] = _floor(v, model_v[v][seg], settings)
+        X[v] = dft(frame, res_v[v])
+        Xm[v] = dft(frame, meas_v[v])
+        Xh[v] = dft(frame, model_v[v])
+        S[v] = noise_floor(frame, X[v], floor=fl[v])
+    # lines the excitation lacks: detect, remove, re-estimate the floor, detect again (a
+    # strong line leaks into the off-grid bins of a rectangular frame and would raise the floor)
+    found = []
+    if lines:
+        segs = {v: res_v[v][seg].copy() for v in VIEWS}
+        for _pass in range(2):
+            P = {v: np.abs(X[v]) ** 2 for v in VIEWS}
+            Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
+            clusters = find_peaks_bins(frame, P, Sl, 0.0, settings.line_search_max_hz, settings.alpha_evidence)
+            clusters = [c for c in clusters if all(abs(c["f_hz"] - ln["f_hz"]) > 2 * frame.df_hz for ln in found)]
+            if not clusters:
+                break
+            for c in clusters[:6]:
+                sig_at = {v: math.sqrt(S[v][c["bin"]] / frame.w2) for v in VIEWS}
+                ln = fit_line(frame, segs, sig_at, c["f_hz"])
+                ln["views_detected"] = sorted(c["views"])
+                ln["peak_ratio"] = c["peak"]
+                ln["threshold"] = c["threshold"]
+                found.append(ln)
+                for v in VIEWS:
+                    segs[v] = segs[v] - ln["component"][v]
+            for v in VIEWS:
+                full = res_v[v].copy()
+                full[seg] = segs[v]
+                X[v] = dft(frame, full)
+                S[v] = noise_floor(frame, X[v], floor=fl[v])
+        if found:
+            # the lines are removed from residual and measurement alike for everything below
+            for v in VIEWS:
+                comp = np.zeros_like(res_v[v])
+                comp[seg] = res_v[v][seg] - segs[v]
+                res_v[v] = res_v[v] - comp
+                meas_v = {**meas_v, v: meas_v[v] - comp}
+                Xm[v] = dft(frame, meas_v[v])
+        # final amplitudes against the final floor
+        for ln in found:
+            k = int(round(ln["f_hz"] / frame.df_hz))
+            for v in VIEWS:
+                se = math.hypot(math.sqrt(S[v][min(k, len(S[v]) - 1)] / frame.w2) * ln["se_scale"], fl[v])
+                ln["se"][v] = se
+                ln["chi2"][v] = abs(ln["phasor"][v]) ** 2 / se ** 2 if se > 0 else float("inf")
+            ln.pop("component", None)
+    for v in VIEWS:
+        sigma[v] = white_sigma(frame, S[v])
+    # deterministic content below the model's reproducibility floor is not evidence: the line
+    # tests see the floor as a line of amplitude fl in every bin
+    Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
+    ft = Features(frame=frame, sigma=sigma, S=S, X=X)
+    ft.lines = found
+    ft.floor = fl
+    # offsets
+    for v in VIEWS:
+        mu, se = offset(frame, res_v[v], S[v])
+        se = math.hypot(se, fl[v])
+        ft.offsets[v] = {"mean": mu, "se": se, "z": mu / se if se > 0 else 0.0}
+    # excited lines
+    exd = _excited_data(rec, frame, meas_v, model_v, Sl, X, Xm, Xh, fl)
+    allf = np.unique(np.concatenate([d["f_hz"] for d in exd.values()])) if exd else np.zeros(0)
+    ft.excited_f_hz = allf
+    for v in VIEWS:
+        chi, k = 0.0, 0
+        seen = set()
+        c = 1.0
+        for d in exd.values():
+            c = d.get("chi_scale", 1.0)
+            for i, b in enumerate(d["bins"]):
+                if int(b) in seen:
+                    continue
+                seen.add(int(b))
+                chi += float(np.abs(d["E"][v][i]) ** 2 / d["Enoise"][v][i])
+                k += 1
+        ft.excited_residual[v] = {"chi2": chi, "k": k, "p": _gamma_p(chi / c, max(int(round(k / c)), 1)) if k else 1.0,
+                                  "excess_ratio": chi / k - 1.0 if k else 0.0}
+    if lines and frame.periodic and exd:
+        ft.lines.extend(_isolated_excited_lines(frame, X, Sl, exd, settings.alpha_evidence))
+    for ax, d in exd.items():
+        # sensor over coil current; for y also the self-sensing estimate over the evaluation
+        # sensor (the sensor path alone: plant changes cancel) and the evaluation sensor over
+        # the coil current (the plant alone)
+        paths = {"x": (("x", "x_meas", "d_x"),),
+                 "y": (("y", "y_ss", "d_y"), ("y_sensor", "y_ss", "y_meas"), ("y_plant", "y_meas", "d_y"))}[ax]
+        for name, sv, va in paths:
+            r = _ratio_fit(d["f_hz"], d["Hm"][sv], d["Hm"][va], d["Hh"][sv], d["Hh"][va], d["var"][sv], d["var"][va])
+            if r is not None:
+                r["axis"] = ax
+                r["path"] = f"{sv}/{va}"
+                ft.ratios[name] = r
+    for a, b in (("x", "y"), ("y", "x")):
+        c = _cross_test(exd, a, b)
+        if c is not None:
+            ft.cross[f"{a}->{b}"] = c
+    # ripple distortion (periodic frames: grid bins above ripple_min_hz)
+    if frame.periodic:
+        sel = frame.grid_mask & (frame.f_hz >= settings.ripple_min_hz)
+        k = int(np.count_nonzero(sel))
+        for v in ("c_x", "c_y", "d_x", "d_y"):
+            chi = float(np.sum(np.abs(X[v][sel]) ** 2 / Sl[v][sel]))
+            ft.ripple[v] = {"chi2": chi, "k": k, "p": _gamma_p(chi, k), "excess_ratio": chi / k - 1.0 if k else 0.0}
+    if meas_ch is not None and model_ch is not None:
+        for c in CHANNELS:
+            e_full = meas_ch[c] - model_ch[c]
+            fl_c = _floor(c, model_ch[c][seg], settings)
+            ft.sigma_ch[c] = white_sigma(frame, noise_floor(frame, dft(frame, e_full), floor=fl_c))
+            e = e_full[seg]
+            if np.std(e) <= 3.0 * fl_c:       # a residual at the reproducibility floor is not tested
+                ft.whiteness[c] = {"Q": 0.0, "p": 1.0, "lags": settings.ljung_box_lags, "below_floor": True}
+                continue
+            q, p, rho = ljung_box(e, settings.ljung_box_lags)
+            ft.whiteness[c] = {"Q": q, "p": p, "lags": settings.ljung_box_lags, "rho": rho}
+    return ft
+
+
+def consistency(ft: Features, alpha: float) -> tuple[bool, list]:
+    """Is the residual consistent with noise? Returns ``(ok, failures)``.
+
+    Four families, each at family-wise level ``alpha / 4`` (Bonferroni inside): offsets,
+    excited-line residual (residual coherent with the excitation), lines the excitation lacks,
+    ripple distortion; plus the Ljung-Box whiteness of every channel.
+    """
+    fam = alpha / 5.0
+    fails = []
+    nv = len(ft.offsets)
+    zc = stats.norm.isf(fam / (2 * nv))
+    for v, o in ft.offsets.items():
+        if abs(o["z"]) > zc:
+            fails.append({"test": "offset", "view": v, "mean": o["mean"], "z": o["z"]})
+    for v, r in ft.excited_residual.items():
+        if r["k"] and r["p"] < fam / len(ft.excited_residual):
+            fails.append({"test": "residual_at_excited_lines", "view": v, "chi2": r["chi2"], "k": r["k"], "p": r["p"]})
+    for ln in ft.lines:
+        fails.append({"test": "line_not_excited", "f_hz": ln["f_hz"], "views": ln["views_detected"],
+                      "amplitude": {v: abs(a) for v, a in ln["phasor"].items()}})
+    for v, r in ft.ripple.items():
+        if r["p"] < fam / max(len(ft.ripple), 1):
+            fails.append({"test": "ripple_distortion", "view": v, "chi2": r["chi2"], "k": r["k"], "p": r["p"]})
+    if ft.whiteness:
+        for c, w in ft.whiteness.items():
+            if w["p"] < fam / len(ft.whiteness):
+                fails.append({"test": "whiteness", "channel": c, "Q": w["Q"], "p": w["p"]})
+    return (not fails), fails

@@ -1,0 +1,111 @@
+"""Settings of the close-the-loop analysis (the ``closeloop`` section of ``config.yaml``).
+
+Every field has a default, so a config without a ``closeloop`` section (or a user's own physics
+config) still works; :func:`settings_from_config` overrides the defaults with the section's
+keys (``datasets`` and ``default_dataset`` are workflow keys and are ignored here).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Mapping
+
+__all__ = ["Settings", "settings_from_config"]
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Analysis settings.
+
+    Attributes
+    ----------
+    fit_fraction : float
+        Fraction of the analysed record (after ``discard_s``) used for fitting; the rest is the
+        held-out part on which every reported error is computed.
+    discard_s : float
+        Start-up time discarded before the analysis (the replay starts from the nominal
+        equilibrium, a rig record does not); rounded up to whole excitation periods.
+    min_fit_s, min_holdout_s : float
+        Shortest fitting and held-out parts accepted ("too short to split" otherwise).
+    alpha_evidence : float
+        Family-wise significance level of a signature feature (Bonferroni inside each feature
+        family: offsets, lines, excited-line residuals, ...).
+    alpha_accept : float
+        Significance level of the held-out improvement test of a fitted effect.
+    alpha_noise : float
+        Family-wise level of the "residual consistent with noise" tests (whiteness, offsets,
+        lines, residual coherent with the excitation).
+    min_explained : float
+        Smallest fraction of the residual excess (power above the noise floor, held out) that an
+        effect must explain to be declared (practical significance).
+    max_effects : int
+        Most effects added by the greedy search.
+    candidates_per_round : int
+        Candidates fitted per greedy round (the best-ranked ones with significant evidence).
+    line_search_max_hz : float
+        Upper frequency of the search for lines the excitation does not contain.
+    ripple_min_hz : float
+        Lower frequency of the band in which current-ripple distortion is looked for.
+    max_gn_iterations : int
+        Gauss-Newton iterations per fit (each costs one simulation of the fitting part).
+    ljung_box_lags : int
+        Lags of the Ljung-Box whiteness test.
+    floor_position_m, floor_current_a : float
+        Smallest noise level assumed for a channel (a channel logged without noise, like the
+        digital controller outputs, would otherwise get infinite weight).
+    floor_relative : float
+        Smallest noise level relative to a channel's signal rms (model reproducibility: a
+        deterministic residual below it is not evidence; data stored in single precision carry
+        ~1e-7, the simulator's own changes ~1e-9).
+    """
+
+    fit_fraction: float = 0.7
+    discard_s: float = 0.1
+    min_fit_s: float = 0.1
+    min_holdout_s: float = 0.05
+    alpha_evidence: float = 1e-3
+    alpha_accept: float = 1e-3
+    alpha_noise: float = 1e-3
+    min_explained: float = 0.2
+    max_effects: int = 3
+    candidates_per_round: int = 3
+    line_search_max_hz: float = 2000.0
+    ripple_min_hz: float = 2000.0
+    max_gn_iterations: int = 6
+    ljung_box_lags: int = 30
+    floor_position_m: float = 1e-10
+    floor_current_a: float = 1e-6
+    floor_relative: float = 1e-5
+
+
+_WORKFLOW_KEYS = ("datasets", "default_dataset")
+
+
+def settings_from_config(cfg: Mapping | None) -> Settings:
+    """Settings from ``cfg['closeloop']`` (missing keys keep their defaults).
+
+    Raises
+    ------
+    ValueError
+        An unknown key (named) or a value out of range.
+    """
+    section = dict((cfg or {}).get("closeloop") or {})
+    known = {f.name for f in dataclasses.fields(Settings)}
+    kw = {}
+    for k, v in section.items():
+        if k in _WORKFLOW_KEYS:
+            continue
+        if k not in known:
+            raise ValueError(f"config key 'closeloop.{k}': unknown (known: {', '.join(sorted(known))})")
+        kw[k] = v
+    ds = section.get("datasets") or {}
+    if "default_dataset" in section and section["default_dataset"] not in ds:
+        raise ValueError(f"config key 'closeloop.default_dataset': '{section['default_dataset']}' is not in "
+                         f"closeloop.datasets (known: {', '.join(ds) or 'none'})")
+    s = Settings(**kw)
+    if not 0.1 <= s.fit_fraction <= 0.95:
+        raise ValueError(f"config key 'closeloop.fit_fraction': must be in [0.1, 0.95] (got {s.fit_fraction})")
+    for name in ("alpha_evidence", "alpha_accept", "alpha_noise"):
+        if not 0 < getattr(s, name) < 0.5:
+            raise ValueError(f"config key 'closeloop.{name}': must be in (0, 0.5)")
+    return s

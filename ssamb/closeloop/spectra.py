@@ -1,0 +1,331 @@
+r"""Frequency-domain tools: DFT frames, noise floor, lines, offsets, transfer estimates.
+
+Notation: a segment of :math:`n` samples :math:`x_m` with taper :math:`w_m` has the DFT
+
+.. math:: X(k) = \sum_{m=0}^{n-1} w_m x_m e^{-2\pi j k m / n}, \qquad f_k = k f_s / n .
+
+For white noise of variance :math:`\sigma^2`, :math:`E|X(k)|^2 = \sigma^2 W_2` with
+:math:`W_2 = \sum w_m^2`, and :math:`|X(k)|^2` is exponentially distributed. The **noise
+floor** :math:`S(k) = E|X(k)|^2` is estimated by the median of :math:`|X|^2` over the bins of
+a frequency band that carry no excitation, divided by :math:`\ln 2` (the median of an
+exponential variable); its white-equivalent variance is
+:math:`\hat\sigma^2 = \frac{2}{n W_2}\sum_{k \ge 1} S(k)`.
+
+Periodic excitation (a multisine recorded over whole periods, rectangular taper): every
+deterministic response to it, including harmonics, intermodulation and the PWM sampling
+pattern, lies on the **grid** :math:`k = iP` (:math:`P` periods in the segment); the bins
+between carry only noise and disturbances that are not synchronous with the excitation. The
+noise floor uses the off-grid bins, lines the excitation lacks are searched there, and the
+excited lines are read exactly, without leakage. Other excitations use a Hann taper, and the
+noise floor uses the bins where the excitation has little power.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, signal
+
+__all__ = ["Frame", "make_frame", "dft", "noise_floor", "white_sigma", "find_peaks_bins",
+           "fit_line", "offset", "welch_transfer"]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Frequency bookkeeping of one analysis segment.
+
+    Attributes
+    ----------
+    fs_hz : float
+    i0, n : int
+        First sample (absolute index in the record) and length of the segment.
+    window : numpy.ndarray
+        Taper (ones when periodic).
+    w2 : float
+        :math:`\\sum w^2`.
+    f_hz : numpy.ndarray
+        Bin frequencies.
+    periodic : bool
+    n_period : int or None
+    noise_mask : numpy.ndarray of bool
+        Bins usable for the noise floor.
+    grid_mask : numpy.ndarray of bool
+        Periodic grid (periodic frames), else the bins with excitation power.
+    line_mask : numpy.ndarray of bool
+        Bins where lines the excitation lacks are searched: off the grid (periodic frames),
+        else away from the excitation's own narrow lines (a broadband excitation excludes none).
+    excited : dict
+        Per excited axis, the bin indices of the excited lines (periodic frames).
+    """
+
+    fs_hz: float
+    i0: int
+    n: int
+    window: np.ndarray
+    w2: float
+    f_hz: np.ndarray
+    periodic: bool
+    n_period: int | None
+    noise_mask: np.ndarray
+    grid_mask: np.ndarray
+    excited: dict
+    line_mask: np.ndarray
+
+    @property
+    def df_hz(self) -> float:
+        return self.fs_hz / self.n
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return (self.i0 + np.arange(self.n)) / self.fs_hz
+
+
+def make_frame(fs_hz: float, i0: int, n: int, excitation: dict, n_period: int | None,
+               lines_hz: np.ndarray | None) -> Frame:
+    """Frame of the segment ``[i0, i0 + n)``.
+
+    Parameters
+    ----------
+    excitation : dict
+        Per excited axis, the excitation signal over the whole record.
+    n_period : int or None
+        Samples per period of a periodic excitation (``n`` must then be a multiple of it).
+    lines_hz : array or None
+        Excited lines of a multisine (else they are found from the excitation's DFT).
+    """
+    f = np.fft.rfftfreq(n, 1.0 / fs_hz)
+    nb = len(f)
+    k = np.arange(nb)
+    excited = {}
+    if n_period is not None and n % n_period == 0 and n // n_period >= 2:
+        per = n // n_period
+        window = np.ones(n)
+        grid = (k % per) == 0
+        noise = ~grid
+        for ax, s in excitation.items():
+            S = np.fft.rfft(s[i0:i0 + n])
+            if lines_hz is not None and len(lines_hz):
+                kb = np.unique(np.round(np.asarray(lines_hz) * n / fs_hz).astype(int))
+                kb = kb[(kb > 0) & (kb < nb)]
+            else:
+                mag = np.abs(S) * grid
+                kb = np.flatnonzero(mag > 1e-6 * mag.max()) if mag.max() > 0 else np.array([], int)
+                kb = kb[kb > 0]
+            excited[ax] = kb
+        return Frame(fs_hz, i0, n, window, float(n), f, True, n_period, noise, grid, excited, noise.copy())
+    window = signal.windows.hann(n, sym=False)
+    pw = np.zeros(nb)
+    for s in excitation.values():
+        pw = np.maximum(pw, np.abs(np.fft.rfft(window * (s[i0:i0 + n] - np.mean(s[i0:i0 + n])))) ** 2)
+    exc_mask = pw > 1e-4 * pw.max() if pw.max() > 0 else np.zeros(nb, bool)
+    # narrow lines of the excitation itself: 100 x above its local (banded) median
+    exc_lines = np.zeros(nb, bool)
+    if pw.max() > 0:
+        for a, b in _bands(np.ones(nb, bool), 64, 32):
+            med = np.median(pw[a:b])
+            exc_lines[a:b] = (pw[a:b] > 100.0 * max(med, 1e-300)) & (pw[a:b] > 1e-8 * pw.max())
+        exc_lines = np.convolve(exc_lines.astype(float), np.ones(5), mode="same") > 0   # Hann main lobe
+    return Frame(fs_hz, i0, n, window, float(np.sum(window ** 2)), f, False, None, ~exc_mask,
+                 exc_mask, excited, ~exc_lines)
+
+
+def dft(frame: Frame, x: np.ndarray) -> np.ndarray:
+    """DFT of the frame's segment of ``x`` (a whole-record array), tapered."""
+    seg = x[frame.i0:frame.i0 + frame.n]
+    if not frame.periodic:
+        seg = seg - np.mean(seg)
+    return np.fft.rfft(frame.window * seg)
+
+
+def _bands(usable: np.ndarray, n_bands: int, min_bins: int) -> list[tuple[int, int]]:
+    nb = len(usable)
+    edges = np.unique(np.round(np.geomspace(1, nb, n_bands + 1)).astype(int))
+    bands, a, count = [], 1, 0
+    for e in edges[1:]:
+        count = int(np.count_nonzero(usable[a:e]))
+        if count >= min_bins or e >= nb:
+            bands.append((a, e))
+            a = e
+    if not bands:
+        bands = [(1, nb)]
+    elif bands[-1][1] < nb:
+        bands[-1] = (bands[-1][0], nb)
+    # merge a last band that is too thin into its neighbour
+    if len(bands) > 1 and np.count_nonzero(usable[bands[-1][0]:bands[-1][1]]) < min_bins:
+        bands[-2] = (bands[-2][0], bands[-1][1])
+        bands.pop()
+    return bands
+
+
+def noise_floor(frame: Frame, X: np.ndarray, n_bands: int = 32, min_bins: int = 24,
+                floor: float = 0.0) -> np.ndarray:
+    r"""Noise floor :math:`S(k) = E|X(k)|^2` per bin (banded median of the noise bins / ln 2).
+
+    ``floor`` is the smallest white-equivalent noise standard deviation admitted (a channel
+    logged without noise would otherwise give :math:`S = 0`).
+    """
+    P = np.abs(X) ** 2
+    nb = len(P)
+    usable = frame.noise_mask.copy()
+    usable[0] = False
+    S = np.empty(nb)
+    for a, b in _bands(usable, n_bands, min_bins):
+        sel = usable[a:b]
+        vals = P[a:b][sel] if np.count_nonzero(sel) >= min_bins // 2 else P[a:b]
+        S[a:b] = np.median(vals) / math.log(2.0) if len(vals) else 0.0
+    S[0] = S[1] if nb > 1 else 0.0
+    return np.maximum(S, floor ** 2 * frame.w2)
+
+
+def white_sigma(frame: Frame, S: np.ndarray) -> float:
+    r"""White-equivalent standard deviation of a noise floor, :math:`\sqrt{\frac{2}{n W_2}\sum_{k\ge1} S(k)}`."""
+    return float(math.sqrt(2.0 * np.sum(S[1:]) / (frame.n * frame.w2)))
+
+
+def offset(frame: Frame, x: np.ndarray, S: np.ndarray) -> tuple[float, float]:
+    r"""Mean of the segment and its standard error from the low-frequency noise floor.
+
+    .. math:: \hat\mu = \frac1n\sum x_m, \qquad \mathrm{SE}^2 = \frac{S(0^+)}{n W_2}
+    """
+    seg = x[frame.i0:frame.i0 + frame.n]
+    se = math.sqrt(max(S[1], 0.0) / (frame.n * frame.w2)) if len(S) > 1 else float("nan")
+    return float(np.mean(seg)), se
+
+
+def find_peaks_bins(frame: Frame, P: dict, S: dict, f_lo_hz: float, f_hi_hz: float,
+                    alpha: float, exclude_hz: np.ndarray | None = None,
+                    half_width_bins: int = 3, local_bins: int = 24) -> list[dict]:
+    r"""Bins whose power stands above the noise floor, clustered across views.
+
+    A bin of view :math:`v` is significant when :math:`|X_v(k)|^2 / S_v(k) > \ln(M/\alpha)`
+    (:math:`M` = bins x views tested; Bonferroni over the exponential distribution), with
+    :math:`S_v` the larger of the noise floor and the running median of :math:`\pm`
+    ``local_bins`` bins (over ln 2): a line is narrow, a resonance is not. Returns
+    clusters ``{bin, f_hz, views: {view: ratio}}`` sorted by strength.
+    """
+    f = frame.f_hz
+    mask = frame.line_mask & (f >= max(f_lo_hz, 2 * frame.df_hz)) & (f <= f_hi_hz)
+    if exclude_hz is not None and len(exclude_hz):
+        for fe in np.atleast_1d(exclude_hz):
+            mask &= np.abs(f - fe) > (half_width_bins + 0.5) * frame.df_hz
+    m_tests = max(int(np.count_nonzero(mask)) * max(len(P), 1), 1)
+    thr = math.log(m_tests / alpha)
+    hits = {}
+    from scipy.ndimage import median_filter
+
+    for v in P:
+        # a line is narrow: compare with the running median of its neighbourhood as well (a
+        # resonance of a broadband residual is not a line)
+        local = median_filter(P[v], size=2 * local_bins + 1, mode="nearest") / math.log(2.0)
+        ratio = P[v] / np.maximum(np.maximum(S[v], local), 1e-300)
+        idx = np.flatnonzero(mask & (ratio > thr))
+        for i in idx:
+            lo, hi = max(i - half_width_bins, 0), i + half_width_bins + 1
+            if ratio[i] >= np.max(ratio[lo:hi] * mask[lo:hi]):
+                hits.setdefault(v, []).append((int(i), float(ratio[i])))
+    clusters: list[dict] = []
+    for v, lst in hits.items():
+        for i, r in lst:
+            for c in clusters:
+                if abs(c["bin"] - i) <= half_width_bins:
+                    c["views"][v] = max(c["views"].get(v, 0.0), r)
+                    if r > c["peak"]:
+                        c["peak"], c["bin"] = r, i
+                    break
+            else:
+                clusters.append({"bin": i, "peak": r, "views": {v: r}})
+    for c in clusters:
+        c["f_hz"] = float(f[c["bin"]])
+        c["threshold"] = thr
+    clusters.sort(key=lambda c: -c["peak"])
+    return clusters
+
+
+def _periodic_project(frame: Frame, x: np.ndarray) -> np.ndarray:
+    """Remove the part synchronous with the period (the tiled mean over periods)."""
+    if not frame.periodic:
+        return x - np.mean(x)
+    per = frame.n // frame.n_period
+    r = x.reshape(per, frame.n_period)
+    return (r - r.mean(axis=0)).ravel()
+
+
+def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: float = 1.5) -> dict:
+    r"""Refine a line's frequency and estimate its phasor in every view.
+
+    Least squares of :math:`e_v(t) \approx a_v \cos\omega t + b_v \sin\omega t` (time from the
+    start of the record, so the phase is that of the record), with the part synchronous with a
+    periodic excitation removed from data and regressors alike; :math:`\omega` maximises
+    :math:`\sum_v \|\hat e_v\|^2 / \sigma_v^2` within ``search_bins`` of ``f0_hz``. The phasor
+    is :math:`A_v = a_v - j b_v` (so :math:`e_v = \mathrm{Re}\,A_v e^{j\omega t}`); the
+    projection keeps the estimate unbiased by the periodic response, and ``component`` is the
+    whole sinusoid (to remove the line everywhere, its leakage onto the grid included).
+
+    Parameters
+    ----------
+    segs : dict
+        Per view, the residual over the frame's segment (length ``frame.n``).
+    sigmas : dict
+        Per view, the white-equivalent noise standard deviation.
+    """
+    t = frame.t_s
+    names = list(segs)
+    proj = {v: _periodic_project(frame, np.asarray(e, float)) for v, e in segs.items()}
+    # whitened views stacked: one matrix product per evaluation of the objective
+    Ew = np.stack([proj[v] / sigmas[v] for v in names])
+
+    def design(fh):
+        w = 2 * np.pi * fh * t
+        return np.column_stack([_periodic_project(frame, np.cos(w)), _periodic_project(frame, np.sin(w))])
+
+    def power(fh):
+        D = design(fh)
+        B = Ew @ D                       # (views, 2)
+        return float(np.sum(B * np.linalg.solve(D.T @ D, B.T).T))
+
+    df = frame.df_hz
+    res = optimize.minimize_scalar(lambda fh: -power(fh), bounds=(f0_hz - search_bins * df, f0_hz + search_bins * df),
+                                   method="bounded", options={"xatol": 1e-6 * df + 1e-9})
+    fh = float(res.x)
+    D = design(fh)
+    G = D.T @ D
+    Ginv = np.linalg.inv(G)
+    scale = math.sqrt(max(Ginv[0, 0], Ginv[1, 1]))
+    out = {"f_hz": fh, "phasor": {}, "se": {}, "chi2": {}, "component": {}, "se_scale": scale}
+    for v, e in proj.items():
+        a, b = Ginv @ (D.T @ e)
+        se = sigmas[v] * scale
+        out["phasor"][v] = complex(a, -b)
+        out["se"][v] = se
+        out["chi2"][v] = float((a * a + b * b) / se ** 2) if se > 0 else float("inf")
+        out["component"][v] = a * np.cos(2 * np.pi * fh * t) + b * np.sin(2 * np.pi * fh * t)
+    return out
+
+
+def welch_transfer(s: np.ndarray, ys: dict, fs_hz: float, nperseg: int) -> dict:
+    r"""Single-input transfer estimates :math:`\hat H = S_{sy}/S_{ss}` with their variance.
+
+    .. math:: E|\hat H - H|^2 \approx \frac{S_{yy}(1-\gamma^2)}{K S_{ss}}
+              = |\hat H|^2 \frac{1-\gamma^2}{K \gamma^2}
+
+    (:math:`\gamma^2` the coherence, :math:`K` the effective number of averaged segments,
+    Bendat & Piersol; half of it per real component). Returns ``f_hz``, ``Sss``, ``k_eff`` and
+    per output ``H``, ``var``, ``coh``.
+    """
+    kw = dict(fs=fs_hz, nperseg=nperseg, noverlap=nperseg // 2, window="hann", detrend="constant")
+    f, Sss = signal.welch(s, **kw)
+    n_seg = max(1, (len(s) - nperseg) // (nperseg // 2) + 1)
+    k_eff = max(1.0, n_seg / 1.06)       # Hann, 50 % overlap
+    out = {"f_hz": f, "Sss": Sss, "k_eff": k_eff, "H": {}, "var": {}, "coh": {}}
+    for c, y in ys.items():
+        _, Ssy = signal.csd(s, y, **kw)
+        _, Syy = signal.welch(y, **kw)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            H = Ssy / Sss
+            coh = np.clip(np.nan_to_num(np.abs(Ssy) ** 2 / (Sss * Syy), nan=0.0), 0.0, 1.0)
+            var = np.nan_to_num(Syy * (1 - coh) / (k_eff * Sss), nan=0.0, posinf=0.0)
+        out["H"][c] = H
+        out["var"][c] = var
+        out["coh"][c] = coh
+    return out

@@ -1,0 +1,214 @@
+"""Tests of the close-the-loop analysis: bad data, output files and format, the building blocks."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from ssamb.cli import main
+from ssamb.closeloop import run_closeloop
+from ssamb.closeloop.data import Record, make_split
+from ssamb.closeloop.residual import _ratio_fit, ljung_box
+from ssamb.closeloop.settings import Settings, settings_from_config
+from ssamb.closeloop.spectra import fit_line, find_peaks_bins, make_frame, noise_floor, white_sigma, dft
+from ssamb.config import load_config
+from ssamb.io import DataError, MEASURED_COLUMNS, save_npz
+from ssamb.rig import run_scenario
+
+REPO = Path(__file__).resolve().parent.parent
+FS = 83300.0
+
+
+def _arrays(n: int, fs: float = FS) -> dict:
+    rng = np.random.default_rng(0)
+    a = {c: 1e-6 * rng.standard_normal(n) for c in MEASURED_COLUMNS}
+    a["t"] = np.arange(n) / fs
+    a["fs_hz"] = np.asarray(fs)
+    return a
+
+
+def _write(tmp: Path, arrays: dict, name: str = "d.npz") -> Path:
+    p = tmp / name
+    save_npz(p, arrays, {"excitation": {"kind": "none"}})
+    return p
+
+
+@pytest.mark.parametrize("break_it, message", [
+    (lambda a: a.pop("y_ss"), "missing required column.*y_ss"),
+    (lambda a: a["x_meas"].__setitem__(100, np.nan), "x_meas.*non-finite"),
+    (lambda a: a.__setitem__("fs_hz", np.asarray(50000.0)), "fs_hz.*disagrees"),
+])
+def test_bad_data_clear_error_and_nothing_written(tmp_path, break_it, message):
+    a = _arrays(int(0.5 * FS))
+    break_it(a)
+    p = _write(tmp_path, a)
+    out = tmp_path / "out"
+    with pytest.raises(DataError, match=message):
+        run_closeloop(p, out, progress=False)
+    assert not out.exists()
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["d.json", "d.npz"]
+
+
+def test_data_at_another_rate_than_the_model(tmp_path):
+    fs = 41650.0
+    p = _write(tmp_path, _arrays(int(0.5 * fs), fs))
+    with pytest.raises(DataError, match="differs from the model's controller rate"):
+        run_closeloop(p, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_too_short_to_split(tmp_path, capsys):
+    p = _write(tmp_path, _arrays(int(0.2 * FS)))
+    with pytest.raises(DataError, match="too short to split"):
+        run_closeloop(p, tmp_path / "out", progress=False)
+    # the command line: exit 2, one line naming the problem, nothing written
+    assert main(["closeloop", str(p), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "too short to split" in err[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_csv_without_sidecar(tmp_path):
+    p = tmp_path / "d.csv"
+    p.write_text(",".join(MEASURED_COLUMNS) + "\n" + ",".join("0" for _ in MEASURED_COLUMNS) + "\n")
+    with pytest.raises(DataError, match="sidecar"):
+        run_closeloop(p, tmp_path / "out", progress=False)
+
+
+def test_settings_unknown_key():
+    with pytest.raises(ValueError, match="closeloop.fit_fractoin"):
+        settings_from_config({"closeloop": {"fit_fractoin": 0.5}})
+    assert settings_from_config({"closeloop": {"datasets": {"a": "b"}, "fit_fraction": 0.6}}).fit_fraction == 0.6
+
+
+def test_split_on_whole_periods():
+    n_p = 16660
+    rec = Record(fs_hz=FS, channels={"x_meas": np.zeros(6 * n_p)}, inputs={}, excitation={}, excited_axes=("y",),
+                 signal={}, n_period=n_p, lines_hz=None, start="levitated", settle_s=None)
+    sp = make_split(rec, 0.7, 0.1, 0.1, 0.05)
+    assert (sp.i0, sp.i_fit, sp.i_end) == (n_p, 4 * n_p, 6 * n_p)   # 1 discarded, 3 fitted, 2 held out
+    rec2 = Record(fs_hz=FS, channels={"x_meas": np.zeros(int(0.5 * FS))}, inputs={}, excitation={}, excited_axes=(),
+                  signal={}, n_period=None, lines_hz=None, start="levitated", settle_s=None)
+    sp2 = make_split(rec2, 0.7, 0.1, 0.1, 0.05)
+    assert abs(sp2.fit_fraction - 0.7) < 1e-3 and sp2.i0 == math.ceil(0.1 * FS)
+
+
+def _signal_with_lines(n, sigma, lines, rng):
+    t = np.arange(n) / FS
+    x = sigma * rng.standard_normal(n)
+    for f, a, ph in lines:
+        x += a * np.cos(2 * np.pi * f * t + ph)
+    return x
+
+
+@pytest.mark.parametrize("periodic", [True, False])
+def test_noise_floor_and_lines(periodic):
+    rng = np.random.default_rng(1)
+    n_p = 16660
+    n = 4 * n_p
+    # excited lines on the grid (periodic case) + one line the excitation lacks
+    exc = _signal_with_lines(n, 0.0, [(5.0 * k, 1.0, 0.3 * k) for k in range(1, 21)], rng)
+    # the line: between the excited lines (periodic frame), above the excited band otherwise (a
+    # Hann frame cannot tell a line from the excitation's own lines closer than its main lobe)
+    fl = 37.31 if periodic else 137.31
+    x = _signal_with_lines(n, 2e-4, [(5.0 * k, 3e-3, 0.1 * k) for k in range(1, 21)] + [(fl, 2e-3, 0.7)], rng)
+    fr = make_frame(FS, 0, n, {"y": exc}, n_p if periodic else None, np.arange(5.0, 101.0, 5.0) if periodic else None)
+    if not periodic:
+        x = x - _signal_with_lines(n, 0.0, [(5.0 * k, 3e-3, 0.1 * k) for k in range(1, 21)], rng)
+    X = dft(fr, x)
+    S = noise_floor(fr, X)
+    cl = find_peaks_bins(fr, {"v": np.abs(X) ** 2}, {"v": S}, 0, 500, 1e-3)
+    assert len(cl) == 1 and abs(cl[0]["f_hz"] - fl) < 2 * fr.df_hz
+    ln = fit_line(fr, {"v": x}, {"v": 2e-4}, cl[0]["f_hz"])
+    assert abs(ln["f_hz"] - fl) < 2e-3
+    assert abs(abs(ln["phasor"]["v"]) / 2e-3 - 1) < 0.02
+    assert abs(np.angle(ln["phasor"]["v"]) - 0.7) < 0.02
+    # with the line removed the floor is the noise (a rectangular frame leaks the line off-grid)
+    S = noise_floor(fr, dft(fr, x - ln["component"]["v"]))
+    assert abs(white_sigma(fr, S) / 2e-4 - 1) < 0.05
+
+
+def test_ratio_fit_recovers_gain_and_delay():
+    rng = np.random.default_rng(2)
+    f = np.arange(5.0, 101.0, 5.0)
+    w = 2 * np.pi * f
+    Hh_s = 1.0 / (1 + 1j * f / 30.0)
+    Hh_a = np.ones_like(Hh_s) * 0.5
+    var = 1e-8 * np.ones_like(f)
+    noise = lambda: np.sqrt(var / 2) * (rng.standard_normal(len(f)) + 1j * rng.standard_normal(len(f)))
+    Hm_s = 1.05 * np.exp(-1j * w * 2.0e-5) * Hh_s + noise()
+    Hm_a = Hh_a + noise()
+    r = _ratio_fit(f, Hm_s, Hm_a, Hh_s, Hh_a, var, var)
+    assert abs(r["gain"] - 1.05) < 1e-3 and abs(r["tau_s"] - 2e-5) < 2e-7
+    assert r["z_tau"] > 10 and r["z_alpha"] > 10
+
+
+def test_ljung_box():
+    rng = np.random.default_rng(3)
+    e = rng.standard_normal(50000)
+    assert ljung_box(e, 30)[1] > 1e-3
+    ar = np.convolve(e, [1.0, 0.3], mode="same")
+    assert ljung_box(ar, 30)[1] < 1e-10
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    """A rig file with a static load, analysed through the command line."""
+    tmp = tmp_path_factory.mktemp("cl")
+    sc = tmp / "s.yaml"
+    sc.write_text(yaml.safe_dump({
+        "config": str(REPO / "config.yaml"),
+        "experiment": {"kind": "multisine", "point": "position", "axis": "both", "amplitude_m": 3.0e-5, "f_min_hz": 5,
+                       "f_max_hz": 100, "f_resolution_hz": 5, "periods": 6, "seed": 3},
+        "effects": [{"name": "static_load", "fx_n": 3.0, "fy_n": -1.0}],
+        "noise": {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 5}}))
+    data = tmp / "rig.npz"
+    run_scenario(sc, data, progress=False)
+    out = tmp / "out"
+    assert main(["closeloop", str(data), "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_closeloop_json_binding_format(written):
+    rep = json.loads((written / "closeloop.json").read_text())
+    assert isinstance(rep["effects"], list) and isinstance(rep["unexplained"], bool)
+    e = rep["effects"][0]
+    assert e["name"] == "static_load" and set(e["params"]) == {"fx_n", "fy_n"}
+    assert abs(e["params"]["fx_n"] - 3.0) < 0.03 and abs(e["params"]["fy_n"] + 1.0) < 0.03
+    assert 0.5 < e["error_reduction"] <= 1.5 and isinstance(e["evidence"], dict)
+    for part in ("error_before", "error_after"):
+        for c in ("x_meas", "y_meas", "y_ss", "currents"):
+            assert set(rep[part][c]) >= {"rms", "fit_pct"}
+    assert 0.5 < rep["validation"]["fit_fraction"] < 0.9
+    assert rep["error_after"]["currents"]["rms"] < 0.2 * rep["error_before"]["currents"]["rms"]
+    assert rep["unexplained"] is False
+
+
+def test_closeloop_figures(written):
+    rep = json.loads((written / "closeloop.json").read_text())
+    for name in ("residual_time.png", "residual_spectra.png", "evidence.png", "whiteness.png"):
+        assert name in rep["figures"] and (written / name).stat().st_size > 10_000
+    assert not [p for p in written.parent.iterdir() if p.name.startswith(".out.")]   # no temp dir left
+
+
+def test_config_closeloop_section_is_valid():
+    cfg = load_config()
+    s = settings_from_config(cfg)
+    assert isinstance(s, Settings)
+    sec = cfg.get("closeloop", {})
+    for name, path in sec.get("datasets", {}).items():
+        assert (REPO / path).exists(), (name, path)
+
+
+def test_report_section_cells(written):
+    from ssamb.closeloop.section import section_cells
+
+    cells = section_cells(written)
+    assert [c.cell_type for c in cells][:2] == ["markdown", "code"]
+    for c in cells:
+        if c.cell_type == "code":
+            compile(c.source, "<cell>", "exec")
