@@ -11,8 +11,10 @@ configfile: "config.yaml"
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/simulate.smk"
+include: "workflow/rules/closeloop.smk"
 
 
 rule all:
     input:
         expand("results/sim/{experiment}.npz", experiment=SIM_EXPERIMENTS),
+        expand("results/closeloop/{dataset}/closeloop.json", dataset=CLOSELOOP_DATASETS),

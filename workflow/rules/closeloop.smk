@@ -1,0 +1,42 @@
+# Close the loop with measured data (issue 6): every data set named in config closeloop.datasets
+# is replayed through the nominal model, its residual analysed, and the library effects that
+# explain it fitted (ssamb.closeloop.run_closeloop). The physics sections and the analysis
+# settings reach the job through params, so a changed value reruns exactly these jobs.
+import copy
+
+CLOSELOOP = config.get("closeloop", {})
+CLOSELOOP_DATASETS = list(CLOSELOOP.get("datasets", {}))
+CLOSELOOP_DEFAULT = CLOSELOOP.get("default_dataset")
+if CLOSELOOP_DEFAULT is not None and CLOSELOOP_DEFAULT not in CLOSELOOP_DATASETS:
+    raise WorkflowError(f"config.yaml: closeloop.default_dataset '{CLOSELOOP_DEFAULT}' is not in closeloop.datasets")
+#: figures every analysis writes (sensor_ratio.png too when an axis is excited)
+CLOSELOOP_FIGURES = ["residual_time.png", "residual_spectra.png", "evidence.png", "whiteness.png"]
+
+
+def closeloop_config(wildcards):
+    """Physics of the nominal model plus the analysis settings (not the data set list)."""
+    cfg = sim_config()
+    cfg["closeloop"] = {k: copy.deepcopy(v) for k, v in CLOSELOOP.items() if k not in ("datasets", "default_dataset")}
+    return cfg
+
+
+rule closeloop:
+    """Replay, residual, signatures, fit and report for one measured data set."""
+    input:
+        data=lambda wc: CLOSELOOP["datasets"][wc.dataset],
+    output:
+        json="results/closeloop/{dataset}/closeloop.json",
+        figures=expand("results/closeloop/{{dataset}}/{fig}", fig=CLOSELOOP_FIGURES),
+    params:
+        cfg=closeloop_config,
+    log:
+        "results/logs/closeloop/{dataset}.log",
+    benchmark:
+        "results/benchmarks/closeloop/{dataset}.tsv"
+    wildcard_constraints:
+        dataset="[A-Za-z0-9_]+",
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    script:
+        "../scripts/closeloop.py"
