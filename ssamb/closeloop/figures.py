@@ -71,7 +71,8 @@ def make_figures(art: dict, out_dir: Path) -> list[str]:
         k, u = _scale(v)
         for m, col, lab in ((before, "tab:red", "nominal"), (after, "tab:blue", "with effects")):
             f, p = signal.welch(k * (meas[v][hold] - m[v][hold]), fs=fs, nperseg=nper)
-            ax.loglog(f[1:], np.sqrt(p[1:]), lw=0.6, color=col, label=lab)
+            if np.any(p[1:] > 0):        # a channel reproduced exactly has nothing to draw
+                ax.loglog(f[1:], np.sqrt(np.maximum(p[1:], 1e-300)), lw=0.6, color=col, label=lab)
         if v in sig:
             ax.axhline(k * sig[v] * np.sqrt(2 / fs), color="k", lw=0.6, ls="--", label="noise floor")
         ax.set_title(v, fontsize=9)

@@ -129,6 +129,15 @@ def build_report(rec, split, nominal: dict, search, settings, source: str, timin
         "timing": timing,
         "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
     }
+    notes = []
+    for ax in ("x", "y"):
+        if ax not in rec.excited_axes:
+            notes.append(f"axis {ax} is not excited: a sensor gain or delay on it leaves no trace in these data")
+    for e in effects:
+        for p, ok in e["fit"]["identifiable"].items():
+            if not ok:
+                notes.append(f"{e['name']}: parameter {p} is not identifiable from these data (no sensitivity)")
+    rep["notes"] = notes
     if rep["unexplained"] and not effects:
         rep["summary"] = "no library effect explains the residual; it is not consistent with noise (see remaining_signature)"
     elif rep["unexplained"]:
