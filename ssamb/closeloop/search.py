@@ -28,7 +28,7 @@ from scipy import stats
 
 from .data import views
 from .fit import fit_effect, holdout_score
-from .models import combine, effect_model, report_entries, split_fit
+from .models import combine, effect_model, report_entries, restart, split_fit
 from .residual import compute_features, consistency
 from .signatures import claim_stat, evidence_all, rank
 
@@ -67,13 +67,32 @@ def _log(progress: bool, msg: str) -> None:
         sys.stderr.flush()
 
 
+def _significant(fr) -> np.ndarray:
+    """Parameters that differ from zero: by 3 standard errors, and by 1e-3 of their natural
+    scale (the finite-difference step; standard errors of a long record can be far below any
+    practical difference)."""
+    return (np.abs(fr.theta) > 3 * fr.se) & (np.abs(fr.theta) > 1e-3 * fr.model.step)
+
+
+def _refit_accepted(acc_fits: list, extra_effects: list, replay, meas_v, split, sigma, settings) -> list:
+    """Refit each accepted effect (one pass) with the others and ``extra_effects`` present."""
+    fits = list(acc_fits)
+    for j, f in enumerate(fits):
+        others = [e for k, g in enumerate(fits) if k != j for e in g.effects] + list(extra_effects)
+        base = views(replay.run(others + f.effects, n=split.fit.stop))
+        new = fit_effect(replay, others, restart(f.model, f.theta), meas_v, base, split.fit, sigma,
+                         settings.max_gn_iterations)
+        if new.cost <= new.cost0:
+            new.cost0 = f.cost0
+            fits[j] = new
+    return fits
+
+
 def _polish(out: SearchResult, replay, meas_v, split, sigma, settings, progress):
     """Refit each accepted effect with the others fixed at their current values (one pass).
 
     An effect fitted before the next one was found is biased by it; one coordinate pass removes
     most of that bias. Returns the new base model (channels, views)."""
-    from .models import restart
-
     for j, acc in enumerate(out.accepted):
         others = [e for k, a in enumerate(out.accepted) if k != j for e in a["fit"].effects]
         fr_old = acc["fit"]
@@ -82,7 +101,7 @@ def _polish(out: SearchResult, replay, meas_v, split, sigma, settings, progress)
         fr = fit_effect(replay, others, model, meas_v, views(base_ch), split.fit, sigma, settings.max_gn_iterations)
         if fr.cost <= fr_old.cost * (1 + 1e-9) or fr.cost < fr.cost0:
             fr.cost0 = fr_old.cost0
-            sig = np.abs(fr.theta) > 3 * fr.se
+            sig = _significant(fr)
             acc["fit"] = fr
             acc["entries"] = report_entries(fr.model, fr.theta, fr.se, sig)
             _log(progress, f"  polish {acc['name']}: {dict(zip(fr.model.params, fr.theta.tolist()))} ({fr.sims} sims)")
@@ -120,13 +139,28 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
             break
         sigma = ft.sigma
 
-        def attempt(names):
-            """Fit ``names`` jointly (one effect, or a pair) and judge the result."""
+        def attempt(names, repolish=False):
+            """Fit ``names`` jointly (one effect, or a pair) and judge the result.
+
+            With ``repolish`` the effects already accepted are refitted with the candidate
+            present (they were fitted without it, and are biased by it), then the candidate again.
+            """
             t1 = time.perf_counter()
             models = [effect_model(n, ev[n].hints, rec.excited_axes) for n in names]
             model = combine(models)
             fr = fit_effect(replay, out.effects, model, meas_v, base_v, split.fit, sigma, settings.max_gn_iterations)
-            cand_ch = replay.run(out.effects + fr.effects)
+            acc_fits = [a["fit"] for a in out.accepted]
+            if repolish and acc_fits:
+                acc_fits = _refit_accepted(acc_fits, fr.effects, replay, meas_v, split, sigma, settings)
+                acc_eff = [e for f in acc_fits for e in f.effects]
+                pre = views(replay.run(acc_eff, n=split.fit.stop))
+                fr2 = fit_effect(replay, acc_eff, restart(model, fr.theta), meas_v, pre, split.fit, sigma,
+                                 settings.max_gn_iterations)
+                fr2.sims += fr.sims
+                fr2.cost0 = fr.cost0
+                fr = fr2
+            acc_eff = [e for f in acc_fits for e in f.effects]
+            cand_ch = replay.run(acc_eff + fr.effects)
             cand_v = views(cand_ch)
             hs = holdout_score(meas_v, base_v, cand_v, split.hold, sigma)
             ft_after = compute_features(rec, fit_frame, meas_v, cand_v, settings)
@@ -149,7 +183,8 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
                     reasons.append(f"the signature of {n} remains after the fit (claim chi2 {c_before:.3g} -> {c_after:.3g})")
             if cand_ch.get("delevitated"):
                 reasons.append("the model with it delevitates")
-            entry = {"name": "+".join(names), "theta": dict(zip(fr.model.params, fr.theta.tolist())),
+            entry = {"name": "+".join(names) + (" (accepted effects refitted)" if repolish else ""),
+                     "theta": dict(zip(fr.model.params, fr.theta.tolist())),
                      "se": dict(zip(fr.model.params, fr.se.tolist())), "sims": fr.sims, "iterations": fr.iterations,
                      "fit_cost_ratio": fr.cost / fr.cost0 if fr.cost0 > 0 else 1.0, "delta_bic": fr.delta_bic,
                      "holdout_z": hs["z"], "explained": hs["explained"], "views_worse": hs["views_worse"],
@@ -159,15 +194,27 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
             _log(progress, f"  {entry['name']}: {entry['theta']} -> held-out z {hs['z']:.1f}, explained "
                            f"{100 * hs['explained']:.0f} %, {'passes' if not reasons else '; '.join(reasons)} "
                            f"({fr.sims} sims, {entry['wall_s']:.1f} s)")
-            return (hs["delta_sse"], names, fr, models, cand_ch, cand_v, hs) if not reasons else None
+            if reasons:
+                return None, reasons
+            return (hs["delta_sse"], names, fr, models, cand_ch, cand_v, hs, acc_fits), []
 
         results = []
+        retry = []
         for name in order[: settings.candidates_per_round]:
-            r = attempt([name])
+            r, why = attempt([name])
             if r is not None:
                 results.append(r)
             else:
                 rejected[name] = rejected.get(name, 0) + 1
+                # a significant improvement that fails only on side effects may be the accepted
+                # effects' bias: retry with them refitted
+                if out.accepted and all(w.startswith(("makes", "the signature")) for w in why):
+                    retry.append(name)
+        if not results:
+            for name in retry:
+                r, _ = attempt([name], repolish=True)
+                if r is not None:
+                    results.append(r)
         if not results and len(order) >= 2:
             # no single effect explains its signature: two effects may hide each other (each
             # biases the other's fit); fit the leading pairs jointly
@@ -175,16 +222,21 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
                       if effect_model(n, ev[n].hints, rec.excited_axes).smooth]
             for i in range(len(smooth)):
                 for j in range(i + 1, len(smooth)):
-                    r = attempt([smooth[i], smooth[j]])
+                    r, _ = attempt([smooth[i], smooth[j]])
                     if r is not None:
                         results.append(r)
         if not results:
             break
         results.sort(key=lambda x: -x[0])
-        _, names, fr, models, cand_ch, cand_v, hs = results[0]
+        _, names, fr, models, cand_ch, cand_v, hs, acc_fits = results[0]
+        for a, f in zip(out.accepted, acc_fits):
+            if f is not a["fit"]:
+                a["fit"] = f
+                a["entries"] = report_entries(f.model, f.theta, f.se, _significant(f))
+        out.effects = [e for a in out.accepted for e in a["fit"].effects]
         parts = split_fit(fr, models)
         for k, (n, frk) in enumerate(zip(names, parts)):
-            sig = np.abs(frk.theta) > 3 * frk.se
+            sig = _significant(frk)
             model_ch = cand_ch if k == len(names) - 1 else replay.run(out.effects + [e for f in parts[:k + 1] for e in f.effects])
             out.accepted.append({"name": n, "fit": frk, "holdout": hs, "evidence": ev[n],
                                  "entries": report_entries(frk.model, frk.theta, frk.se, sig), "round": rnd,
