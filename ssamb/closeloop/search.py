@@ -12,7 +12,12 @@ Round :math:`r` (base model = nominal model + the effects accepted so far):
    own signature is gone from the residual (its claim statistic falls below the evidence
    threshold or to 1 % of its value: an effect that explains only part of a feature, like an
    unbalance fitted to a force in one axis, fails);
-4. the passing candidate with the largest held-out improvement is accepted.
+4. when no candidate passes: a candidate that improved the held-out error but failed only on
+   side effects is refitted together with the effects already accepted (those were fitted
+   without it and are biased by it); then the leading pairs of smooth candidates are fitted
+   jointly (two effects can hide each other: each biases the other's fit alone);
+5. the passing candidate (or pair) with the largest held-out improvement is accepted, and all
+   accepted effects are polished (each refitted once with the others present).
 
 The search stops when no candidate passes, ``max_effects`` are in, or the held-out residual is
 consistent with noise (:func:`ssamb.closeloop.residual.consistency`).
