@@ -210,7 +210,8 @@ def excitation_arrays(spec: Mapping, fs_hz: float, duration_s: float | None, see
 
     ``point: position`` drives the position references, ``point: current`` the current
     injection just before the amplifiers; ``axis: both`` drives x with ``seed`` and y with
-    ``seed + 7919`` (independent realisations). Returns ``(duration_s, arrays, info)`` where
+    ``seed + 7919`` (independent realisations; the same shift applies to a ``seed`` given in
+    the spec itself). Returns ``(duration_s, arrays, info)`` where
     ``info`` holds what a data file's ``meta`` must record to regenerate the excitation.
     """
     from .. import signals
@@ -226,8 +227,11 @@ def excitation_arrays(spec: Mapping, fs_hz: float, duration_s: float | None, see
     sigs = {}
     info: dict[str, Any] = {"seed": seed, "axis_seeds": {}}
     for a_i, ax in enumerate(axes):
+        spec_ax = dict(spec)
+        if "seed" in spec_ax:   # a seed in the spec takes precedence in make_excitation
+            spec_ax["seed"] = int(spec_ax["seed"]) + 7919 * a_i
         try:
-            exc = signals.make_excitation(dict(spec), fs_hz, duration_s, seed + 7919 * a_i)
+            exc = signals.make_excitation(spec_ax, fs_hz, duration_s, seed + 7919 * a_i)
         except ValueError as err:
             raise ConfigError(str(err)) from None
         sigs[ax] = np.asarray(exc.x, float)
