@@ -12,14 +12,20 @@ and orders (plant 4->2 order 9, amplifier 4->4 order 7, self-sensing 1->1 order 
 length (0.5 s at 83.3 kHz = 41 650 samples), AMB-like operating points (currents 3 A +- pulses
 of 0.3 A, positions ~1e-5 m) and 60 dB output noise; the systems are random but stable
 (seeded). Each identification runs in a fresh process so that its peak resident memory
-(``ru_maxrss``) is its own; ``tracemalloc`` reports the peak of the arrays allocated by
-Python/numpy during the call (LAPACK workspace excluded).
+(``ru_maxrss``, column "RSS GB"; "+RSS GB" is the increase during the call) is its own; with
+``--tracemalloc`` the peak of the arrays allocated through Python/numpy during the call is
+reported too ("numpy GB", LAPACK workspace excluded; it slows the Python loops, so the wall
+times of that run are inflated). Imports and the numba compilation are done before the timer.
+Wall times depend on the machine's load (printed); on a shared 2-core machine
+``--blas-threads 1`` was 2-3x faster than the default 2 OpenBLAS threads.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import multiprocessing as mp
+import queue
 import os
 import resource
 import sys
@@ -93,7 +99,7 @@ def synthetic_data(duration_s: float, fs_hz: float, seed: int = 1) -> dict:
 
 
 def _worker(args, queue):
-    sub, u, y, ins, outs, order, method, ss_f, ss_p, fs_hz = args
+    sub, u, y, ins, outs, order, method, ss_f, ss_p, fs_hz, use_tracemalloc = args
     # warm-up outside the timing: SIPPY's import (control.matlab, ...) and the compiled kernels
     import sippy_unipi  # noqa: F401
 
@@ -101,7 +107,8 @@ def _worker(args, queue):
 
     _jit_kernels()
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    tracemalloc.start()
+    if use_tracemalloc:
+        tracemalloc.start()
     t0 = time.perf_counter()
     try:
         mdl = identify(u, y, order, method, fs_hz, ins, outs, ss_f=ss_f, ss_p=ss_p)
@@ -109,8 +116,10 @@ def _worker(args, queue):
     except Exception as exc:  # report, do not crash the benchmark
         mdl, err = None, f"{type(exc).__name__}: {exc}"
     wall = time.perf_counter() - t0
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    peak = math.nan
+    if use_tracemalloc:
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
     res = {"subsystem": sub, "method": method, "order": order, "inputs": len(ins), "outputs": len(outs),
            "n_samples": len(u), "ss_f": ss_f, "ss_p": ss_p, "wall_s": wall,
@@ -151,9 +160,18 @@ def run(args) -> list[dict]:
         for method in args.methods:
             q = ctx.Queue()
             p = ctx.Process(target=_worker, args=((sub, u, y, ins, outs, PAPER_ORDERS[sub], method,
-                                                   args.ss_f, args.ss_p, fs_hz), q))
+                                                   args.ss_f, args.ss_p, fs_hz, args.tracemalloc), q))
             p.start()
-            res = q.get()
+            res = None
+            while res is None:
+                try:
+                    res = q.get(timeout=5.0)
+                except queue.Empty:
+                    if not p.is_alive():  # the worker died (e.g. out of memory): report, go on
+                        res = {"subsystem": sub, "method": method, "order": PAPER_ORDERS[sub],
+                               "n_samples": len(u), "wall_s": math.nan, "peak_rss_gb": math.nan,
+                               "rss_increase_gb": math.nan, "tracemalloc_peak_gb": math.nan,
+                               "error": f"worker exited with code {p.exitcode}"}
             p.join()
             rows.append(res)
             fit = res.get("fit_estimation_pct", res["error"])
@@ -176,6 +194,8 @@ def main(argv=None) -> int:
     ap.add_argument("--blas-threads", type=int, default=None,
                     help="OPENBLAS/OMP/MKL_NUM_THREADS for the workers (default: inherit)")
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    ap.add_argument("--tracemalloc", action="store_true",
+                    help="also report the tracemalloc peak (slows the Python loops: wall times inflate)")
     args = ap.parse_args(argv)
     rows = run(args)
     if args.json:

@@ -31,14 +31,15 @@ its standard deviation, which is zero for a constant), so the estimation runs in
    from a high-order ARX model with an intercept fitted to the raw data
    (:func:`arx_equilibrium`). It is **not** the output mean: the mean differs from the
    equilibrium by the mean of the transients, :math:`O(1/N)`, and that constant left in the
-   centred data is an unmodelled disturbance that biases the subspace estimate (on noise-free
-   data of a known system: pole errors of 1e-1 with the mean, 1e-13 with the equilibrium);
+   centred data is an unmodelled disturbance that biases the subspace estimate (measured on
+   noise-free data of a known 4th-order system: pole errors of 1e-1 with the mean, 1e-13 with
+   the equilibrium);
 2. SIPPY's subspace step runs on :math:`(u - \bar u, y - \bar y)` and returns
    :math:`(A, B, C, D, K)`;
 3. the affine columns are folded back **exactly**: :math:`b_1 = -B\bar u`,
    :math:`d_1 = \bar y - D\bar u` (the affine model equals the deviation model plus the
    offsets, nothing is thrown away);
-4. optionally (``refine``, default 'auto') :math:`B, D, b_1, d_1` are re-estimated by linear
+4. by default (``refine='auto'``; ``'none'`` skips it) :math:`B, D, b_1, d_1` are re-estimated by linear
    least squares on the **raw, undetrended** data for the fixed :math:`(A, C)` of step 2
    (output error for a stable :math:`A`, the one-step predictor with the Kalman gain
    :math:`K` for an unstable one), the "focus on simulation" of MATLAB's ``n4sid``.
@@ -62,11 +63,19 @@ mode grows by a factor e).
 Excitation and rank deficiency
 ------------------------------
 The plant's four current inputs are excited almost only in the differential direction (the
-injections enter through ``u_x``, ``u_y``; the common mode carries only the constant bias and
-the PWM ripple). :func:`input_excitation` reports the singular values of the scaled input
-matrix; ``input_directions`` (a user-chosen :math:`T`, e.g. the differential currents) or
-``input_rank_tol`` (principal directions) identify the model on :math:`T u` and expand it
-back, :math:`B = B_T T`, which gives the minimum-norm model: zero gain in unexcited directions.
+injections enter through ``u_x``, ``u_y``; the common mode carries only the constant bias, the
+PWM ripple and the position back-coupling). :func:`input_excitation` reports the singular
+values of the scaled input matrix; ``input_directions`` (a user-chosen :math:`T`, e.g. the
+differential currents) or ``input_rank_tol`` (principal directions) identify the model on
+:math:`T u` and expand it back, :math:`B = B_T T`, which gives the minimum-norm model: zero
+gain in unexcited directions. The constant part of the common mode is carried by the affine
+column either way.
+
+The amplifier's position inputs are harder: in closed loop without an independent excitation
+of the rotor, ``x_meas`` and ``y_meas`` are causal functions of the past commands, so only
+:math:`(I - G_x P)^{-1} G_u` is identifiable, not the split into command path :math:`G_u` and
+position path :math:`G_x`. ``input_excitation(u, hankel_rows=f)`` (stored in ``info`` by
+:func:`identify`) exposes it as near-zero singular values of the input block-Hankel matrix.
 """
 from __future__ import annotations
 
@@ -320,7 +329,7 @@ def subsystem_io(arrays: Mapping[str, Any], subsystem: str) -> IOData:
                   tuple(spec["outputs"]))
 
 
-def input_excitation(u, input_names=None) -> dict:
+def input_excitation(u, input_names=None, hankel_rows: int | None = None) -> dict:
     r"""How well the input directions are excited.
 
     The inputs are centred and scaled to unit standard deviation (as SIPPY does) and the
@@ -328,11 +337,20 @@ def input_excitation(u, input_names=None) -> dict:
     the largest, with the right singular vectors (the directions). A ratio near zero means a
     direction (e.g. the common mode of two coil currents) the data cannot identify.
 
+    With ``hankel_rows = f`` the relative singular values of the block-Hankel matrix of the
+    scaled inputs (:math:`f m` rows: the input part of SIPPY's data matrix) are returned too:
+    persistency of excitation of order f. Small values there mean that some input channels are
+    (dynamically) predictable from the others -- at 83.3 kHz the smooth position signals alone
+    make a few of them small, and in closed loop the positions are causal functions of the
+    commands, which makes the split between command and position paths of the amplifier
+    unidentifiable without an independent excitation of the rotor.
+
     Returns
     -------
     dict
         ``relative_singular_values`` (m,), ``directions`` (m, m) rows = directions in the scaled
-        inputs, ``std`` (m,), ``condition_number``.
+        inputs, ``std`` (m,), ``condition_number``; with ``hankel_rows``:
+        ``hankel_relative_singular_values`` (f m,) and ``hankel_min_relative_sv``.
     """
     u = _as_2d(u, "u")
     std = u.std(axis=0)
@@ -340,13 +358,24 @@ def input_excitation(u, input_names=None) -> dict:
     z = (u - u.mean(axis=0)) / std
     _, s, vt = np.linalg.svd(z / math.sqrt(len(z)), full_matrices=False)
     rel = s / s[0] if s[0] > 0 else s
-    return {
+    out = {
         "input_names": list(input_names) if input_names is not None else None,
         "relative_singular_values": rel,
         "directions": vt,
         "std": std,
         "condition_number": float(s[0] / s[-1]) if s[-1] > 0 else math.inf,
     }
+    if hankel_rows is not None:
+        f = int(hankel_rows)
+        if not 1 <= f < len(z):
+            raise ValueError(f"hankel_rows must be in [1, {len(z) - 1}] (got {hankel_rows})")
+        H = np.lib.stride_tricks.sliding_window_view(z, (f, z.shape[1]))[:, 0].reshape(len(z) - f + 1, -1)
+        ev = np.linalg.eigvalsh(H.T @ H / len(H))[::-1]  # Gram matrix: sigma^2 of the Hankel matrix
+        hs = np.sqrt(np.clip(ev, 0.0, None))
+        hs = hs / hs[0] if hs[0] > 0 else hs
+        out["hankel_relative_singular_values"] = hs
+        out["hankel_min_relative_sv"] = float(hs[-1])
+    return out
 
 
 # ----------------------------------------------------------------------------------------
@@ -947,8 +976,11 @@ def identify(
     input_names, output_names : sequence of str
         Channel names (default ``u0.., y0..``).
     ss_f, ss_p : int
-        Future and past horizons (``SS_f``, ``SS_p``; the SIM methods use ``p = f``). The
-        default 30 keeps a 4x4 identification on 40 000 samples under a minute and 1 GB.
+        Future and past horizons (``SS_f``, ``SS_p``; the SIM methods use ``p = f``; order
+        < ``ss_f``). With the default 30 a 4x4 identification on 41 650 samples takes 10-35 s
+        and < 1.2 GB (``bench/ident_speed.py``); the cost of SIPPY's SVDs grows as
+        :math:`N ((m+l) f)^2`. Under CPU contention set ``OPENBLAS_NUM_THREADS=1`` (measured
+        2-3x faster than 2 threads on a loaded 2-core machine).
     D_required : bool
         Estimate a feedthrough D (``SS_D_required``); default strictly proper (one sample of
         delay, which also avoids algebraic loops in the closed-loop assembly).
@@ -1004,7 +1036,7 @@ def identify(
             y_bar = y.mean(axis=0)
     else:
         y_bar = np.zeros(l_)
-    exc = input_excitation(u, input_names)
+    exc = input_excitation(u, input_names, hankel_rows=ss_f)
 
     # input directions (rank deficiency handling)
     if input_directions is not None:
@@ -1073,6 +1105,8 @@ def identify(
         "refine": refine_info,
         "input_directions": None if T is None else T.tolist(),
         "input_relative_singular_values": exc["relative_singular_values"].tolist(),
+        "input_hankel_min_relative_sv": exc["hankel_min_relative_sv"],
+        "input_hankel_n_below_1e-3": int(np.sum(exc["hankel_relative_singular_values"] < 1e-3)),
         "spectral_radius": _spectral_radius(A),
         "y_mean_data": y.mean(axis=0).tolist(),
         "y_centre": y_bar.tolist(),
