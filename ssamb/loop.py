@@ -81,14 +81,15 @@ def as_statespace(sys, inputs: Sequence[str] | None = None, outputs: Sequence[st
     return control.ss(sys.A, sys.B, sys.C, sys.D, sys.dt, inputs=ins, outputs=outs, name=name)
 
 
-def _check_names(sys: control.StateSpace, name: str, inputs: Sequence[str], outputs: Sequence[str]):
+def _check_names(sys: control.StateSpace, name: str, inputs: Sequence[str], outputs: Sequence[str],
+                 optional_inputs: Sequence[str] = ()):
     missing_in = [s for s in inputs if s not in sys.input_labels]
     missing_out = [s for s in outputs if s not in sys.output_labels]
-    extra_in = [s for s in sys.input_labels if s not in inputs and s != ONE]
+    extra_in = [s for s in sys.input_labels if s not in inputs and s not in optional_inputs and s != ONE]
     if missing_in or missing_out or extra_in:
         raise ValueError(
             f"{name}: inputs {sys.input_labels} / outputs {sys.output_labels} do not match the "
-            f"expected inputs {list(inputs)} (+ optional '{ONE}') / outputs {list(outputs)}")
+            f"expected inputs {list(inputs)} (+ optional {list(optional_inputs) + [ONE]}) / outputs {list(outputs)}")
 
 
 @dataclass(frozen=True)
@@ -121,9 +122,11 @@ def assemble_closed_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, require
     plant : IdentifiedModel or StateSpace
         Inputs ``i_ypos, i_yneg, i_xpos, i_xneg`` (+ ``one``), outputs ``x_meas, y_meas``.
     amplifier : IdentifiedModel or StateSpace
-        Inputs ``u_x_cmd, u_y_cmd, x_meas, y_meas`` (+ ``one``), outputs the 4 currents.
+        Inputs ``u_x_cmd, u_y_cmd`` and optionally ``x_meas, y_meas`` (the paper's 4-input
+        model) (+ ``one``), outputs the 4 currents.
     selfsensing : IdentifiedModel or StateSpace
-        Input ``i_ypos`` (+ ``one``), output ``y_ss``.
+        One input, ``i_ypos`` (the paper's structure) or ``y_meas`` (DCM as a position sensor)
+        (+ ``one``), output ``y_ss``.
     pid_x, pid_y : StateSpace
         SISO discrete controllers (e.g. :func:`ssamb.sim.controller.pid_discrete`), error in,
         current out; renamed ``e_x -> u_x`` and ``e_y -> u_y``.
@@ -149,8 +152,10 @@ def assemble_closed_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, require
     Cx = as_statespace(pid_x, inputs=["e_x"], outputs=["u_x"], name="pid_x")
     Cy = as_statespace(pid_y, inputs=["e_y"], outputs=["u_y"], name="pid_y")
     _check_names(P, "plant", CURRENTS, ("x_meas", "y_meas"))
-    _check_names(G, "amplifier", ("u_x_cmd", "u_y_cmd", "x_meas", "y_meas"), CURRENTS)
-    _check_names(S, "selfsensing", ("i_ypos",), ("y_ss",))
+    _check_names(G, "amplifier", ("u_x_cmd", "u_y_cmd"), CURRENTS, optional_inputs=("x_meas", "y_meas"))
+    if len([c for c in S.input_labels if c != ONE]) != 1:
+        raise ValueError(f"selfsensing: must be SISO (one input besides '{ONE}'), got {S.input_labels}")
+    _check_names(S, "selfsensing", (), ("y_ss",), optional_inputs=("i_ypos", "y_meas"))
     for sysname, s in (("pid_x", Cx), ("pid_y", Cy)):
         if s.ninputs != 1 or s.noutputs != 1:
             raise ValueError(f"{sysname} must be SISO")

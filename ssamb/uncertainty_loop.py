@@ -16,7 +16,7 @@ Uncertainty cases (dimensionally consistent channel sets, one scalar weight per 
 =============== ====================================== =================== ==========
 case            Delta input u (from the loop)           Delta output d        block
 =============== ====================================== =================== ==========
-selfsensing     i_ypos                                  added to y_ss          [1, 1]
+selfsensing     the model's input (i_ypos or y_meas)    added to y_ss          [1, 1]
 amplifier       u_x_cmd, u_y_cmd                        added to 4 currents    [4, 2]
 plant           4 currents                              added to x, y          [2, 4]
 all             the three above, block-diagonal                                 three blocks
@@ -37,7 +37,7 @@ import numpy as np
 from .ident import CURRENTS
 from .loop import as_statespace
 
-__all__ = ["CASES", "CASE_CHANNELS", "uncertainty_loop", "case_structure", "n11_function"]
+__all__ = ["CASES", "CASE_CHANNELS", "case_channels", "uncertainty_loop", "case_structure", "n11_function"]
 
 #: subsystem -> (Delta inputs u, Delta outputs d (names of the signals d is added to), block)
 CASE_CHANNELS = {
@@ -59,6 +59,15 @@ def _subsystems_for(case: str) -> tuple[str, ...]:
 def case_structure(case: str) -> list[list[int]]:
     """``mussv`` block structure of a case (one full complex block per subsystem)."""
     return [[len(CASE_CHANNELS[k][1]), len(CASE_CHANNELS[k][0])] for k in _subsystems_for(case)]
+
+
+def case_channels(loop: control.StateSpace) -> dict:
+    """Channel sets of the uncertainty cases for the models in ``loop`` (see the table above;
+    the self-sensing Delta input is whatever the self-sensing model reads)."""
+    ss_in = loop.info_ss_input if hasattr(loop, "info_ss_input") else "i_ypos"
+    out = dict(CASE_CHANNELS)
+    out["selfsensing"] = ((ss_in,), ("y_ss",))
+    return out
 
 
 def uncertainty_loop(plant, amplifier, selfsensing, pid_x, pid_y) -> control.StateSpace:
@@ -94,13 +103,15 @@ def uncertainty_loop(plant, amplifier, selfsensing, pid_x, pid_y) -> control.Sta
         control.summing_junction(inputs=["u_x"], output="u_x_cmd", dt=dt, name="sum_ux"),
         control.summing_junction(inputs=["u_y"], output="u_y_cmd", dt=dt, name="sum_uy"),
     ]
-    outs = ["i_ypos", "u_x_cmd", "u_y_cmd"] + [c for c in CURRENTS if c != "i_ypos"]
+    outs = ["i_ypos", "u_x_cmd", "u_y_cmd"] + [c for c in CURRENTS if c != "i_ypos"] + ["x_meas", "y_meas"]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         # the affine input 'one' stays unconnected (zero): deviation model
         sys = control.interconnect(blocks, inplist=d_inputs, inputs=d_inputs, outlist=outs, outputs=outs,
                                    name="uncertainty_loop")
-    return control.ss(sys.A, sys.B, sys.C, sys.D, dt, inputs=d_inputs, outputs=outs, name=sys.name)
+    loop = control.ss(sys.A, sys.B, sys.C, sys.D, dt, inputs=d_inputs, outputs=outs, name=sys.name)
+    loop.info_ss_input = [c for c in S.input_labels if c != "one"][0]
+    return loop
 
 
 def n11_function(loop: control.StateSpace, weights: Mapping[str, control.LTI], case: str,
@@ -112,9 +123,10 @@ def n11_function(loop: control.StateSpace, weights: Mapping[str, control.LTI], c
     Rows: Delta inputs u in block order; columns: Delta outputs d in block order.
     """
     subs = _subsystems_for(case)
+    channels = case_channels(loop)
     rows, cols, wrow = [], [], []
     for k in subs:
-        u, d = CASE_CHANNELS[k]
+        u, d = channels[k]
         if k not in weights:
             raise ValueError(f"no uncertainty weight for subsystem '{k}'")
         rows += list(u)

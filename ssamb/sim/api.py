@@ -28,7 +28,7 @@ from .magnetics import MAX_PLAY, flux_from_current, force_from_flux, gap_sum
 from .params import AMBParams, P_HYST, amb_params
 
 __all__ = ["SimResult", "simulate", "equilibrium", "calibrate_selfsensing", "excitation_arrays",
-           "noise_arrays", "delevitation_time"]
+           "force_arrays", "noise_arrays", "delevitation_time"]
 
 
 @dataclass
@@ -250,6 +250,37 @@ def excitation_arrays(spec: Mapping, fs_hz: float, duration_s: float | None, see
     return duration_s, arrs, info
 
 
+def force_arrays(spec: Mapping, fs_hz: float, n: int, seed: int):
+    """External force on the rotor from an excitation spec (``amplitude_n`` in newtons).
+
+    An identification aid: force pulses move the rotor independently of the controller's
+    commands, which makes the amplifier's dependence on position identifiable from closed-loop
+    data (with injections alone the positions are causal functions of past commands). The
+    force is not a logged signal. ``axis: both`` uses independent realisations per axis.
+    Returns ``(f_x, f_y, info)``.
+    """
+    from .. import signals
+
+    spec = dict(spec)
+    if "amplitude_n" not in spec:
+        raise ConfigError("force excitation: key 'amplitude_n' missing")
+    axis = spec.pop("axis", "y")
+    spec["amplitude_a"] = spec.pop("amplitude_n")   # make_excitation's amplitude (unit label only)
+    spec.pop("point", None)
+    axes = ("x", "y") if axis == "both" else (axis,)
+    out = {"x": np.zeros(n), "y": np.zeros(n)}
+    for a_i, ax in enumerate(axes):
+        sp = dict(spec)
+        if "seed" in sp:
+            sp["seed"] = int(sp["seed"]) + 7919 * a_i
+        try:
+            exc = signals.make_excitation(sp, fs_hz, n / fs_hz, seed + 104729 + 7919 * a_i)
+        except ValueError as err:
+            raise ConfigError(f"force excitation: {err}") from None
+        out[ax] = np.asarray(exc.x, float)[:n]
+    return out["x"], out["y"], {"axis": axis, **{k: v for k, v in spec.items()}}
+
+
 def noise_arrays(noise: Mapping | None, n: int):
     """Gaussian sensor noise: x probe and y evaluation sensor (``position_m`` rms), the four
     current measurements (``current_a`` rms); seeded by ``noise['seed']``. The noise enters the
@@ -359,6 +390,11 @@ def simulate(cfg: Mapping, experiment: str | None = None, *, duration_s: float |
         return np.ascontiguousarray(np.concatenate([head, a]))
 
     ov, f_x, f_y = apply_effects(effects, np.maximum(t_all, 0.0), effects_base_dir)
+    force_info = None
+    if exp.get("force"):
+        fxs, fys, force_info = force_arrays(exp["force"], fs, n, seed)
+        f_x = f_x + np.concatenate([np.zeros(n_settle), fxs])
+        f_y = f_y + np.concatenate([np.zeros(n_settle), fys])
     packed = par.pack(**ov)
     if not pid_on:
         from .params import P_PID_ON
@@ -413,6 +449,7 @@ def simulate(cfg: Mapping, experiment: str | None = None, *, duration_s: float |
         "kind": "simulation",
         "experiment": experiment,
         "excitation": {**dict(exc), **info},
+        "force_excitation": force_info,
         "start": exp["start"],
         "duration_s": dur,
         "fs_hz": fs,
