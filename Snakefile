@@ -12,9 +12,13 @@ configfile: "config.yaml"
 include: "workflow/rules/common.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/closeloop.smk"
+include: "workflow/rules/analysis.smk"
 
 
 rule all:
     input:
         expand("results/sim/{experiment}.npz", experiment=SIM_EXPERIMENTS),
         expand("results/closeloop/{dataset}/closeloop.json", dataset=CLOSELOOP_DATASETS),
+        expand("results/mu/{case}.json", case=MU_CASES),
+        "results/mu/baseline.json",
+        "results/validation/sweep.json",

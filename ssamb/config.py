@@ -120,6 +120,34 @@ def _physical_errors(cfg: Mapping) -> list[str]:
         if exp["duration_s"] is None and exc["kind"] != "multisine":
             msgs.append(f"config key 'experiments.{name}.duration_s': null is only allowed for multisine excitation")
     del mag
+    exps = cfg["experiments"]
+    refs = []
+    if "identification" in cfg:
+        idc = cfg["identification"]
+        refs += [("identification.estimation", idc["estimation"]), ("identification.validation", idc["validation"])]
+        for sub in ("plant", "amplifier", "selfsensing"):
+            if idc[sub]["order"] >= idc["ss_f"]:
+                msgs.append(f"config key 'identification.{sub}.order': {idc[sub]['order']} must be below "
+                            f"identification.ss_f = {idc['ss_f']} (SIPPY's future horizon)")
+        if max(idc["order_scan"]["orders"]) >= idc["ss_f"]:
+            msgs.append("config key 'identification.order_scan.orders': every order must be below identification.ss_f")
+    if "assembly" in cfg:
+        refs.append(("assembly.fig4", cfg["assembly"]["fig4"]))
+    if "uncertainty" in cfg:
+        refs.append(("uncertainty.experiment", cfg["uncertainty"]["experiment"]))
+        e = exps.get(cfg["uncertainty"]["experiment"])
+        if e is not None and e["excitation"]["kind"] != "multisine":
+            msgs.append("config key 'uncertainty.experiment': must name a multisine experiment (the ETFE is read on its lines)")
+    if "mu" in cfg and cfg["mu"]["f_min_hz"] >= cfg["mu"]["f_max_hz"]:
+        msgs.append("config key 'mu.f_min_hz': must be below mu.f_max_hz")
+    if "validation" in cfg:
+        if "sweep" not in exps:
+            msgs.append("config key 'experiments.sweep': missing (the validation stage needs the sweep experiment)")
+        elif exps["sweep"]["excitation"]["kind"] != "sweep":
+            msgs.append("config key 'experiments.sweep.excitation.kind': must be 'sweep'")
+    for key, name in refs:
+        if name not in exps:
+            msgs.append(f"config key '{key}': experiment '{name}' is not defined in 'experiments'")
     return msgs
 
 

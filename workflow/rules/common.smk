@@ -6,6 +6,10 @@ from ssamb.config import ConfigError, validate_config
 
 try:
     validate_config(config)
+    _missing = [k for k in ("identification", "assembly", "uncertainty", "mu", "validation", "closeloop")
+                if k not in config]
+    if _missing:
+        raise ConfigError("; ".join(f"config key '{k}': missing (required by the workflow)" for k in _missing))
 except ConfigError as _err:
     raise WorkflowError(f"config.yaml: {_err}") from None
 

@@ -1,0 +1,12 @@
+"""Snakemake script: sweep validation (ssamb.validation_stage.run_validate)."""
+import sys
+from pathlib import Path
+
+from ssamb.validation_stage import run_validate
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stderr = sys.stdout = log
+    inp, out = snakemake.input, snakemake.output  # noqa: F821
+    models = {Path(p).stem: p for p in inp.models}
+    run_validate(inp.sweep, models, inp.weight, snakemake.params.sim, snakemake.params.validation,  # noqa: F821
+                 out.json, out.fig)
