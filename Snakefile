@@ -13,10 +13,13 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/closeloop.smk"
 include: "workflow/rules/analysis.smk"
+include: "workflow/rules/report.smk"
 
 
 rule all:
     input:
+        "results/report.html",
+        "results/summary.json",
         expand("results/sim/{experiment}.npz", experiment=SIM_EXPERIMENTS),
         expand("results/closeloop/{dataset}/closeloop.json", dataset=CLOSELOOP_DATASETS),
         expand("results/mu/{case}.json", case=MU_CASES),

@@ -1,0 +1,23 @@
+"""Snakemake script: results/summary.json (ssamb.report.write_summary)."""
+import sys
+from pathlib import Path
+
+from ssamb.report import write_summary
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stderr = sys.stdout = log
+    inp = snakemake.input  # noqa: F821
+    default = snakemake.params.default_dataset  # noqa: F821
+    cl = {Path(p).parent.name: p for p in inp.closeloop}
+    write_summary(
+        snakemake.output[0],  # noqa: F821
+        assemble_json=inp.assemble,
+        evidence_jsons={Path(p).stem.replace("_evidence", ""): p for p in inp.evidence},
+        uncertainty_jsons={Path(p).stem: p for p in inp.uncertainty},
+        mu_jsons={Path(p).stem: p for p in inp.mu},
+        baseline_json=inp.baseline,
+        validation_json=inp.validation,
+        closeloop_json=cl.get(default),
+        closeloop_all=cl,
+        sim_metas=list(inp.sims),
+    )
