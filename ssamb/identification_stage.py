@@ -134,7 +134,13 @@ def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsyst
     if not ok:
         raise RuntimeError(f"identify {subsystem}: every method failed: "
                            + "; ".join(f"{r.method}: {r.error}" for r in results))
-    best = max(ok, key=lambda r: r.mean_fit)
+    # the amplifier (current loops) and DCM self-sensing are stable systems: prefer stable models
+    # for them; the plant is open-loop unstable and is judged on its prediction fit alone
+    pool = ok
+    if subsystem != "plant":
+        stable = [r for r in ok if r.stable]
+        pool = stable or ok
+    best = max(pool, key=lambda r: r.mean_fit)
     model = best.model
     # 2. order scan (evidence) on a shorter record with the selected method
     scan_cfg = params["order_scan"]
@@ -179,6 +185,8 @@ def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsyst
         "poles_z": {"re": poles.real.tolist(), "im": poles.imag.tolist()},
         "poles_hz": (np.log(poles.astype(complex)) * fs / (2 * np.pi)).real.tolist(),
         "methods": [r.as_dict() for r in results],
+        "selection": ("best validation fit among the stable models" if subsystem != "plant" and any(r.stable for r in ok)
+                      else "best validation fit"),
         "order_scan": scan.as_dict(),
         "estimation_samples": int(len(u)),
         "validation_samples": int(len(uv)),
