@@ -13,6 +13,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/closeloop.smk"
 include: "workflow/rules/analysis.smk"
+include: "workflow/rules/study.smk"
 include: "workflow/rules/report.smk"
 
 

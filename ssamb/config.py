@@ -145,6 +145,11 @@ def _physical_errors(cfg: Mapping) -> list[str]:
             msgs.append("config key 'experiments.sweep': missing (the validation stage needs the sweep experiment)")
         elif exps["sweep"]["excitation"]["kind"] != "sweep":
             msgs.append("config key 'experiments.sweep.excitation.kind': must be 'sweep'")
+    if "study" in cfg:
+        try:
+            get(cfg, cfg["study"]["parameter"])
+        except ConfigError:
+            msgs.append(f"config key 'study.parameter': '{cfg['study']['parameter']}' is not a key of the config")
     for key, name in refs:
         if name not in exps:
             msgs.append(f"config key '{key}': experiment '{name}' is not defined in 'experiments'")

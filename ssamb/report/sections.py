@@ -238,6 +238,36 @@ def _validation():
     ]
 
 
+def _study():
+    return [
+        _md("""
+        ## Parameter study
+
+        The self-sensing μ margin and the sweep amplitude at which the nonlinear and the nominal LTI
+        models delevitate, for other values of one parameter (config `study`; each value is its own
+        workflow job, so the study spreads over a cluster).
+        """),
+        _code("""
+        st_path = R / "study" / "study.json"
+        if st_path.exists():
+            st = json.loads(st_path.read_text())
+            rows = []
+            for p in st["points"]:
+                ca = p.get("critical_amplitude_m") or {}
+                rows.append([p["value"], p["stable"], (p.get("fit_pct") or {}).get("x"), (p.get("fit_pct") or {}).get("y"),
+                             p.get("mu_peak"), p.get("mu_peak_hz"), p.get("mu_margin"),
+                             None if ca.get("nonlinear") is None else ca["nonlinear"] * 1e6,
+                             None if ca.get("nominal_lti") is None else ca["nominal_lti"] * 1e6])
+            display(Markdown(f"Parameter: `{st['parameter']}`"))
+            display(HTML(T.table(rows, ["value", "LTI loop stable", "fit x (%)", "fit y (%)", "mu peak", "at (Hz)", "mu margin", "critical amplitude, nonlinear (um)", "critical amplitude, LTI (um)"])))
+            if (R / "study" / "study.png").exists():
+                display(Image(filename=str(R / "study" / "study.png")))
+        else:
+            display(Markdown("No parameter study in this run."))
+        """),
+    ]
+
+
 def _provenance():
     return [
         _md("""
@@ -276,5 +306,6 @@ def all_sections(results_dir: Path, summary: Mapping, config_path: str | None = 
     if closeloop_dir is not None:
         secs.append([_md("## 7. Close the loop with measured data (beyond the paper)")]
                     + section_cells(closeloop_dir, title="The chain on the default rig data set"))
+    secs.append(_study())
     secs.append(_provenance())
     return secs

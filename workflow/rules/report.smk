@@ -38,6 +38,7 @@ rule report:
             "results/sim/multisine.npz",
         ],
         config_file="config.yaml",
+        study="results/study/study.json",
     output:
         html="results/report.html",
         notebook="results/report.ipynb",

@@ -1,0 +1,8 @@
+"""Snakemake script: gather the parameter study (ssamb.study.collect_study)."""
+import sys
+
+from ssamb.study import collect_study
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stderr = sys.stdout = log
+    collect_study(list(snakemake.input), snakemake.output.json, snakemake.output.fig)  # noqa: F821
