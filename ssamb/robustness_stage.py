@@ -211,7 +211,7 @@ def run_baseline(closed_loop_npz: str | Path, models: Mapping[str, str | Path], 
     (x: ``x_meas``, y: ``y_ss``), with the other axis closed: :math:`S = 1/(1 + L)` of the loop
     broken at the controller input.
     """
-    from .robust import classical_margins, sensitivity_peak
+    from .robust import sensitivity_peak
     from .sim.controller import pid_discrete
 
     pid = pid_discrete(pid_params)
@@ -222,15 +222,59 @@ def run_baseline(closed_loop_npz: str | Path, models: Mapping[str, str | Path], 
     for axis in ("x", "y"):
         L = _loop_transfer(m, pid, axis)
         sp = sensitivity_peak(L, freqs, kind="L")
-        cm = classical_margins(L)
+        mg = loop_margins(L, np.logspace(-1, np.log10(0.45 / float(L.dt)), 20000))
         out[axis] = {"peak_sensitivity": float(sp.peak), "peak_sensitivity_db": float(sp.peak_db),
-                     "peak_hz": float(sp.peak_hz), "iso14839_zone": sp.zone,
-                     "gain_margin": _f(cm.gain_margin), "gain_margin_db": _f(cm.gain_margin_db),
-                     "phase_margin_deg": _f(cm.phase_margin_deg),
-                     "gain_crossover_hz": _f(cm.gain_crossover_hz),
-                     "phase_crossover_hz": _f(cm.phase_crossover_hz)}
+                     "peak_hz": float(sp.peak_hz), "iso14839_zone": sp.zone, **mg}
     write_json(out_json, out)
     return out
+
+
+def loop_margins(L: control.LTI, freqs_hz: np.ndarray) -> dict:
+    r"""Classical margins of a SISO loop that may be open-loop unstable (conditionally stable).
+
+    On a dense grid: every gain crossover (:math:`|L| = 1`) gives a phase margin
+    :math:`180° + \angle L` (wrapped), and every phase crossover (:math:`\angle L = \pm 180°`,
+    i.e. L real negative) gives a gain factor :math:`1/|L|`. For an open-loop unstable plant
+    the loop has an *upper* gain margin (factor > 1 before instability) and a *lower* one
+    (reduction factor < 1): both are reported, with the smallest phase margin. (A margin
+    computed for a stable open loop, such as ``control.stability_margins``, does not apply.)
+    """
+    f = np.asarray(freqs_hz, float)
+    w = 2 * np.pi * f
+    arg = np.exp(1j * w * L.dt) if L.dt else 1j * w
+    Lw = np.asarray(L(arg)).reshape(-1)
+    mag = np.abs(Lw)
+    ph = np.degrees(np.angle(Lw))
+    pm, f_pm = [], []
+    for i in np.flatnonzero(np.diff(np.sign(mag - 1.0)) != 0):
+        a = (1.0 - mag[i]) / (mag[i + 1] - mag[i])
+        p = ph[i] + a * (((ph[i + 1] - ph[i]) + 180) % 360 - 180)
+        pm.append(((180.0 + p) + 180) % 360 - 180)
+        f_pm.append(f[i] + a * (f[i + 1] - f[i]))
+    up, low, f_up, f_low = [], [], [], []
+    im = Lw.imag
+    for i in np.flatnonzero(np.diff(np.sign(im)) != 0):
+        a = im[i] / (im[i] - im[i + 1])
+        re = Lw.real[i] + a * (Lw.real[i + 1] - Lw.real[i])
+        if re >= 0:
+            continue
+        k = 1.0 / abs(re)
+        fc = f[i] + a * (f[i + 1] - f[i])
+        (up if k > 1 else low).append(k)
+        (f_up if k > 1 else f_low).append(fc)
+    res = {"phase_margin_deg": None, "phase_margin_hz": None, "gain_margin_upper_db": None,
+           "gain_margin_upper_hz": None, "gain_margin_lower_db": None, "gain_margin_lower_hz": None,
+           "gain_crossovers_hz": [float(x) for x in f_pm]}
+    if pm:
+        j = int(np.argmin(np.abs(pm)))
+        res["phase_margin_deg"], res["phase_margin_hz"] = float(abs(pm[j])), float(f_pm[j])
+    if up:
+        j = int(np.argmin(up))
+        res["gain_margin_upper_db"], res["gain_margin_upper_hz"] = float(20 * np.log10(up[j])), float(f_up[j])
+    if low:
+        j = int(np.argmax(low))
+        res["gain_margin_lower_db"], res["gain_margin_lower_hz"] = float(20 * np.log10(low[j])), float(f_low[j])
+    return res
 
 
 def _f(v):

@@ -208,9 +208,11 @@ def _mu():
         """),
         _code("""
         B = S["details"]["baseline"]
-        rows = [[ax, b["peak_sensitivity"], b["peak_sensitivity_db"], b["peak_hz"], b["iso14839_zone"], b["gain_margin_db"], b["phase_margin_deg"]]
+        rows = [[ax, b["peak_sensitivity"], b["peak_sensitivity_db"], b["peak_hz"], b["iso14839_zone"],
+                 b["gain_margin_upper_db"], b["gain_margin_lower_db"], b["phase_margin_deg"], b["phase_margin_hz"]]
                 for ax, b in B.items()]
-        display(HTML(T.table(rows, ["axis", "peak |S|", "peak |S| (dB)", "at (Hz)", "ISO 14839-3 zone", "gain margin (dB)", "phase margin (deg)"])))
+        display(HTML(T.table(rows, ["axis", "peak |S|", "peak |S| (dB)", "at (Hz)", "ISO 14839-3 zone", "gain margin, upper (dB)",
+                                    "gain margin, lower (dB)", "phase margin (deg)", "at (Hz)"])))
         """),
     ]
 
