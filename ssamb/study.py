@@ -2,7 +2,7 @@ r"""Parameter study: the μ margin and the delevitation amplitude over one physi
 
 One study point runs the analysis chain in one process for a config with one value changed
 (:func:`run_study_point`): simulate the identification, validation, multisine and sweep
-experiments, identify the three subsystems (first configured method, configured orders),
+experiments, identify the three subsystems (configured methods and orders; no order scan),
 assemble the closed loop, measure the self-sensing weight, compute μ for the self-sensing case,
 and find the sweep amplitude at which the nonlinear model and the nominal LTI model delevitate.
 The workflow runs the points as separate jobs (``rule study_point``, wildcard ``value``), so they
@@ -38,7 +38,6 @@ def run_study_point(cfg: Mapping, parameter: str, value: float, out_json: str | 
     c = apply_overrides(cfg, {parameter: value})
     validate_config(c)
     idc = copy.deepcopy(c["identification"])
-    idc["methods"] = idc["methods"][:1]
     idc["order_scan"] = {"orders": [idc["plant"]["order"]], "duration_s": idc["order_scan"]["duration_s"]}
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
