@@ -37,7 +37,7 @@ def comparison_rows(S: Mapping) -> list[tuple[str, str, str, str]]:
     if ss_in != "i_ypos":
         why_y = (f"Our self-sensing model reads the true position ({ss_in}); the paper's reads the coil current "
                  f"i_ypos, which a linear model cannot turn into position (DCM demodulates the ripple amplitude). "
-                 f"Identified the paper's way it fits {_f(pv_fit, 3)} % (the paper: 50.76 % on y) and its assembled "
+                 f"Identified the paper's way it fits {_f(pv_fit, 3)} % (the paper: {PAPER['fit_y_pct'][0]} % on y) and its assembled "
                  f"loop is {'unstable' if ss_var and not ss_var.get('stable', True) else 'stable'} "
                  f"(spectral radius {_f(ss_var.get('spectral_radius'))}).")
     else:
@@ -68,7 +68,7 @@ def comparison_rows(S: Mapping) -> list[tuple[str, str, str, str]]:
                      _f(mu_ss["scale_for_unity"], 3),
                      "Ours is far less conservative: our nominal self-sensing model is accurate (position input), so "
                      "the measured mismatch, hence the weight, is small relative to the loop's tolerance."
-                     if mu_ss["scale_for_unity"] > 0.0012 * 10 else
+                     if mu_ss["scale_for_unity"] > 10 * PAPER["mu_scale_for_unity"][0] else
                      "Comparable conservatism to the paper's."))
         rows.append(("mu peak frequency (self-sensing)", f"~{PAPER['mu_peak_hz'][0]:g} Hz",
                      f"{_f(mu_ss['peak_hz'], 3)} Hz",
