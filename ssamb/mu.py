@@ -56,7 +56,10 @@ with a quasi-Newton (BFGS) method applied to the log-sum-exp smoothing
 :math:`t\log\sum_k e^{\lambda_k/t}` of the eigenvalues with continuation
 :math:`t\to 0` (an LMI-free method).  *Any* scaling yields a valid bound; the optimiser only
 decides how tight it is, and the exact :math:`\lambda_{\max}` at the best scaling seen is
-returned.
+returned.  That descent is not convex in (log d, G) and can stall on badly scaled mixed
+problems; when real blocks are present and the bounds have not met, the upper bound is then
+refined by the method of centers for its generalized eigenvalue problem (Boyd & El Ghaoui
+1993), which is quasi-convex in (X, G) and reaches the LMI optimum (:func:`_gevp_centers`).
 
 Lower bound
 -----------
@@ -100,6 +103,8 @@ References
 * P. Young, M. Newlin, J. Doyle, "Computing bounds for the mixed μ problem", Int. J. Robust
   Nonlinear Control 5, 1995.
 * P. Young, J. Doyle, "A lower bound for the mixed μ problem", IEEE TAC 42(1), 1997.
+* S. Boyd, L. El Ghaoui, "Method of centers for minimizing generalized eigenvalues", Linear
+  Algebra Appl. 188-189, 1993.
 """
 from __future__ import annotations
 
@@ -1095,8 +1100,7 @@ def mussv(
         taus = taus if tfull[0] else taus[:0]
     xb, lamb, nev = _upper_opt(Mn, kinds, offs, sizes, tpos, tfull, gpos, has_real, x0,
                                taus, 60, int(max_evals))
-    upper_n = float(np.sqrt(max(lamb, 0.0)))
-    upper = upper_n / c
+    upper = float(np.sqrt(max(lamb, 0.0))) / c
 
     # ---------------- lower bound ----------------
     search = _LowerSearch(M, lay)
@@ -1104,11 +1108,190 @@ def mussv(
         _lower_bound(search, Mi, Mn, lay, xb, tpos, tfull, has_real, all_real,
                      upper, seed, n_restarts, vertex_limit)
     lower, delta, det_res, method = search.finish()
+    if has_real and lamb > 0.0 and lower < upper * (1.0 - 1e-6):
+        # the bounds have not met: solve the upper bound's GEVP convexly
+        xb, lamb = _gevp_centers(Mn, lay, xb, lamb, x_osb, tpos, tfull, gpos)
+        upper = float(np.sqrt(max(lamb, 0.0))) / c
     if lower > upper:
         # both are certified, so the excess is round-off (mu attained): keep lower <= upper
         upper = lower
     return _assemble(M, lay, xb, tpos, tfull, gpos, c, upper, delta, lower,
                      method, nev, blk_arr, det_res=det_res)
+
+
+
+# ----------------------------------------------------------------------------------------
+# mixed structures: convex (Dinkelbach) refinement of the upper bound
+# ----------------------------------------------------------------------------------------
+def _herm_basis(lay, which: str) -> list:
+    """Orthogonal Hermitian basis of a block-diagonal scaling space (``n × n`` matrices).
+
+    ``which='X'``: the D-scaling space (``x I`` on a full block or a 1×1 block, any Hermitian
+    ``X_k`` on a repeated scalar block); ``'G'``: the G space (any Hermitian ``G_k`` on a real
+    block)."""
+    n = lay.n
+    out = []
+    for k, b in enumerate(lay.blocks):
+        o, r = int(lay.offs[k]), int(lay.sizes[k])
+        if which == "G" and b.kind != _REAL:
+            continue
+        if r == 1 or (which == "X" and b.kind == _FULL):
+            E = np.zeros((n, n), dtype=np.complex128)
+            E[o:o + r, o:o + r] = np.eye(r)
+            out.append(E)
+            continue
+        for i in range(r):
+            E = np.zeros((n, n), dtype=np.complex128)
+            E[o + i, o + i] = 1.0
+            out.append(E)
+        for i in range(r):
+            for j in range(i + 1, r):
+                for v in (1.0, 1j):
+                    E = np.zeros((n, n), dtype=np.complex128)
+                    E[o + i, o + j] = v
+                    E[o + j, o + i] = np.conj(v)
+                    out.append(E)
+    return out
+
+
+def _x_from_scalings(X, G, lay, tpos, tfull, gpos, npar) -> np.ndarray:
+    """Parameter vector of :func:`_eval` from a block-diagonal ``X = T^H T`` (``T`` upper
+    triangular per block, positive diagonal) and the unscaled LMI variable ``G``."""
+    x = np.zeros(npar)
+    for k in range(len(lay.blocks)):
+        o, r = int(lay.offs[k]), int(lay.sizes[k])
+        Xk = X[o:o + r, o:o + r]
+        Xk = 0.5 * (Xk + Xk.conj().T)
+        if tfull[k] == 0:
+            x[tpos[k]] = 0.5 * np.log(Xk[0, 0].real)
+        else:
+            Tk = np.linalg.cholesky(Xk).conj().T
+            p0 = tpos[k]
+            x[p0:p0 + r] = np.log(np.diag(Tk).real)
+            idx = p0 + r
+            for i in range(r):
+                for j in range(i + 1, r):
+                    x[idx], x[idx + 1] = Tk[i, j].real, Tk[i, j].imag
+                    idx += 2
+        if gpos[k] >= 0:
+            Gk = G[o:o + r, o:o + r]
+            g0 = gpos[k]
+            x[g0:g0 + r] = np.diag(Gk).real
+            idx = g0 + r
+            for i in range(r):
+                for j in range(i + 1, r):
+                    x[idx], x[idx + 1] = Gk[i, j].real, Gk[i, j].imag
+                    idx += 2
+    return x
+
+
+def _gevp_centers(Mn, lay, x, lam, x_ref, tpos, tfull, gpos, theta=0.2, max_outer=200,
+                  rtol=1e-9):
+    r"""Refine a mixed-μ upper bound by the method of centers for its generalized eigenvalue
+    problem (Boyd & El Ghaoui 1993, "Method of centers for minimizing generalized
+    eigenvalues", Linear Algebra Appl. 188)
+
+    .. math:: \min \lambda \;\text{s.t.}\; \lambda X - A(X, G) \succ 0,\; X \succ 0,\quad
+              A = M^H X M + j(GM - M^H G),\quad \operatorname{tr} X = n,
+
+    which is quasi-convex in (X, G).  At level :math:`\lambda_k` the analytic center of
+    :math:`\{\lambda_k X - A \succ 0,\, X \succ 0\}` (maximiser of
+    :math:`\log\det(\lambda_k X - A) + \log\det X`) is found by damped Newton steps, whose
+    affine invariance makes them indifferent to how the variables are scaled; the
+    generalized eigenvalue :math:`\lambda_c` at the center is a certified bound and the next
+    level is :math:`\lambda_{k+1} = (1-\theta)\lambda_c + \theta\lambda_k`.  The problem is
+    posed in the fixed coordinates of ``x_ref`` (Osborne balancing: a congruence, which keeps
+    every sign), started from ``x``.  The fast (log d, G) descent of :func:`_upper_opt` is not
+    convex in its variables and can stall on badly scaled mixed problems; this step reaches
+    the LMI optimum (the one SLICOT AB13MD computes).  A center whose eigenvalue is not
+    resolved above round-off is not used."""
+    n = lay.n
+    kinds, offs, sizes = lay.kinds, lay.offs, lay.sizes
+    EX, EG = _herm_basis(lay, "X"), _herm_basis(lay, "G")
+    eye = np.eye(n, dtype=np.complex128)
+    FX = [E - (np.trace(E).real / n) * eye for E in EX[1:]]  # trace-free directions
+    nx, ng = len(FX), len(EG)
+    Gb = np.array(EG).reshape(-1, n, n)
+    gtmp = np.zeros(x.shape[0])
+    T0, T0i = _build_T(x_ref, offs, sizes, tpos, tfull, n)
+    MT = T0 @ Mn @ T0i
+    MH = MT.conj().T
+    s = max(float(np.linalg.norm(MH @ MT, 2)), 1e-300)
+    # start (X, G) of x in these coordinates, trace normalised
+    T, _ = _build_T(x, offs, sizes, tpos, tfull, n)
+    X0 = T0i.conj().T @ (T.conj().T @ T) @ T0i
+    G0 = T0i.conj().T @ _build_G(x, offs, sizes, kinds, gpos, n) @ T0i
+    f0 = n / np.trace(X0).real
+    X0, G0 = X0 * f0, G0 * f0
+    A0 = (MH @ X0 @ MT + 1j * (G0 @ MT - MH @ G0)) / s
+    AXp = np.array([MH @ F @ MT / s for F in FX]).reshape(-1, n, n)
+    AGp = np.array([1j * (E @ MT - MH @ E) / s for E in EG]).reshape(-1, n, n)
+    F2p = np.array(FX + [np.zeros((n, n), np.complex128)] * ng).reshape(-1, n, n)
+    P = nx + ng
+    best_x, best_lam = x.copy(), float(lam)
+    lev = best_lam * (1.0 + 1e-2)
+    y = np.zeros(P)
+    for _ in range(max_outer):
+        lv = lev / s
+        F10 = lv * X0 - A0
+        F1p = np.concatenate([lv * F2p[:nx] - AXp, -AGp]).reshape(-1, n, n)
+
+        def barrier(y):
+            F1 = F10 + np.tensordot(y, F1p, axes=1)
+            F2 = X0 + np.tensordot(y, F2p, axes=1)
+            try:
+                C1 = np.linalg.cholesky(0.5 * (F1 + F1.conj().T))
+                C2 = np.linalg.cholesky(0.5 * (F2 + F2.conj().T))
+            except np.linalg.LinAlgError:
+                return np.inf, None, None
+            return -2.0 * (np.log(np.diag(C1).real).sum() + np.log(np.diag(C2).real).sum()), C1, C2
+
+        phi, C1, C2 = barrier(y)
+        if not np.isfinite(phi):
+            break
+        for _newton in range(50):
+            # S_p = C^{-1} F_p C^{-H}: grad_p = -tr S_p, Hess_pq = Re tr(S_p S_q)
+            S1 = np.linalg.solve(C1, np.linalg.solve(C1, F1p).conj().transpose(0, 2, 1))
+            S2 = np.linalg.solve(C2, np.linalg.solve(C2, F2p).conj().transpose(0, 2, 1))
+            g = -(np.trace(S1, axis1=1, axis2=2).real + np.trace(S2, axis1=1, axis2=2).real)
+            A1, A2 = S1.reshape(P, -1), S2.reshape(P, -1)
+            H = (A1.conj() @ A1.T).real + (A2.conj() @ A2.T).real
+            dy = -np.linalg.lstsq(H, g, rcond=1e-14)[0]
+            dec2 = float(-g @ dy)  # squared Newton decrement
+            if not (dec2 > 1e-16):
+                break
+            step = 1.0 if dec2 < 0.25 else 1.0 / (1.0 + np.sqrt(dec2))
+            while step > 1e-10:
+                phin, C1n, C2n = barrier(y + step * dy)
+                if phin <= phi - 0.25 * step * dec2:
+                    break
+                step *= 0.5
+            else:
+                break
+            y, phi, C1, C2 = y + step * dy, phin, C1n, C2n
+            if dec2 < 1e-10:
+                break
+        X = X0 + np.tensordot(y, F2p, axes=1)
+        G = G0 + (np.tensordot(y[nx:], Gb, axes=1) if ng else 0.0)
+        try:  # back to the coordinates of Mn (X = T0^H X' T0, G = T0^H G' T0)
+            xn = _x_from_scalings(T0.conj().T @ X @ T0, T0.conj().T @ G @ T0, lay, tpos,
+                                  tfull, gpos, x.shape[0])
+        except np.linalg.LinAlgError:
+            break
+        _, lamc = _eval(xn, Mn, kinds, offs, sizes, tpos, tfull, gpos, True, 0.0, gtmp)
+        # round-off of lambda_max(H), H = M_T^H M_T + j(Gt M_T - M_T^H Gt)
+        Tn, Tni = _build_T(xn, offs, sizes, tpos, tfull, n)
+        MTn = Tn @ Mn @ Tni
+        Gtn = Tni.conj().T @ _build_G(xn, offs, sizes, kinds, gpos, n) @ Tni
+        err = 1e-13 * n * (np.linalg.norm(MTn, 2) ** 2 + 2 * np.linalg.norm(Gtn @ MTn, 2))
+        if not (np.isfinite(lamc) and lamc > 10.0 * err):
+            break
+        if lamc < best_lam:
+            best_x, best_lam = xn, float(lamc)
+        if not (lamc < lev) or lev - lamc <= rtol * lamc:
+            break
+        lev = (1.0 - theta) * lamc + theta * lev  # the center stays strictly feasible
+    return best_x, best_lam
 
 
 def _lower_bound(search, Mi, Mn, lay, xb, tpos, tfull, has_real, all_real, upper,
