@@ -81,8 +81,55 @@ class FitResult:
         return float(self.n * math.log(max(self.cost, 1e-300) / max(self.cost0, 1e-300)) + p * math.log(self.n))
 
 
+def _scan(replay, base_effects, model, meas_v, fit_sl, sigma, u, lo, hi, scan_s):
+    """Coordinate-wise global scan of the parameters that have a grid, each followed by a
+    bounded scalar refinement between the grid neighbours of its best point; the cost is
+    taken over the first ``scan_s`` seconds of the fitting part.  Returns (u, cost on the
+    scan window, simulations)."""
+    from scipy.optimize import minimize_scalar
+
+    n_end = min(fit_sl.stop, fit_sl.start + max(int(scan_s * replay.record.fs_hz), 1))
+    sl = slice(fit_sl.start, n_end)
+    sims = 0
+
+    def cost(uu):
+        nonlocal sims
+        th = np.clip(model.theta0 + uu * model.step, model.lower, model.upper)
+        sims += 1
+        rr = whitened(meas_v, views(replay.run(base_effects + model.build(th), n=n_end)), sl, sigma)
+        return float(rr @ rr)
+
+    u = u.copy()
+    best = cost(u)
+    for i, g in enumerate(model.grid):
+        if g is None:
+            continue
+        ug = np.clip((np.asarray(g, float) - model.theta0[i]) / model.step[i], lo[i], hi[i])
+        cs = []
+        for v in ug:
+            uu = u.copy()
+            uu[i] = v
+            cs.append(cost(uu))
+        k = int(np.argmin(cs))
+        if cs[k] < best:
+            best, u[i] = cs[k], ug[k]
+        a, b = ug[max(k - 1, 0)], ug[min(k + 1, len(ug) - 1)]
+        if b > a:
+            def f(x, i=i):
+                nonlocal best
+                uu = u.copy()
+                uu[i] = x
+                c = cost(uu)
+                if c < best:
+                    best, u[i] = c, x
+                return c
+            minimize_scalar(f, bounds=(a, b), method="bounded",
+                            options={"xatol": 1e-4 * (b - a), "maxiter": 30})
+    return u, best, sims
+
+
 def fit_effect(replay, base_effects: list, model: EffectModel, meas_v: dict, base_v: dict, fit_sl: slice,
-               sigma: dict, max_iter: int = 6) -> FitResult:
+               sigma: dict, max_iter: int = 6, scan_above: float = 2.0, scan_s: float = 0.5) -> FitResult:
     """Fit ``model`` added to ``base_effects`` on the fitting part (see module docstring).
 
     Parameters
@@ -98,6 +145,11 @@ def fit_effect(replay, base_effects: list, model: EffectModel, meas_v: dict, bas
         Noise level per view.
     max_iter : int
         Gauss-Newton steps (smooth models).
+    scan_above, scan_s : float
+        When the model has a ``grid`` and the cost after the local fit is still above
+        ``scan_above`` times its noise expectation (the number of whitened samples), the
+        grid is scanned globally on the first ``scan_s`` seconds of the fitting part and the
+        best point refined (:func:`_scan`); the better of the two fits is kept.
 
     Notes
     -----
@@ -208,6 +260,13 @@ def fit_effect(replay, base_effects: list, model: EffectModel, meas_v: dict, bas
                 break
         else:
             lam = max(lam * 10.0, 1e-3)
+    if model.grid is not None and cost > scan_above * len(r):
+        u1, _, ns = _scan(replay, base_effects, model, meas_v, fit_sl, sigma, u, lo, hi, scan_s)
+        sims += ns
+        r1 = res(model_views(u1))
+        if float(r1 @ r1) < cost:
+            u, r, cost = u1, r1, float(r1 @ r1)
+            J, ident, _ = jacobian(u, r)
     n = len(r)
     se = np.full(p, np.inf)
     if np.any(ident):

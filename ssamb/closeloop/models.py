@@ -49,6 +49,12 @@ class EffectModel:
     moments : callable, optional
         ``(views, slice) -> vector`` of features that are linear in the parameter (the first
         estimate is taken from them).
+    grid : tuple, optional
+        Per parameter, ``None`` or an array of values (theta units) for a global scan when the
+        local fit leaves the residual far above the noise (:func:`ssamb.closeloop.fit.fit_effect`).
+        The sensor parameters have one: where the self-sensing estimator's residual gate
+        rejects windows (current-step excitation), the replay of the self-sensed axis is a
+        discontinuous function of them, and a local fit can stop in a ripple of the cost.
     """
 
     name: str
@@ -61,6 +67,7 @@ class EffectModel:
     fixed: dict
     smooth: bool = True
     moments: Callable | None = None
+    grid: tuple | None = None
 
 
 def effect_model(name: str, hints: dict, excited_axes: tuple) -> EffectModel:
@@ -73,17 +80,22 @@ def effect_model(name: str, hints: dict, excited_axes: tuple) -> EffectModel:
     if name == "sensor_delay":
         th = np.array([max(float(hints.get("delay_" + a, 0.0)), 0.0) for a in axes])
         step = np.maximum(0.2 * th, 2e-6)
+        # scan: 1 us steps over 0-150 us (further when the evidence points further)
+        grid = tuple(np.linspace(0.0, hi, int(round(hi / max(1e-6, hi / 400))) + 1)
+                     for hi in (max(150e-6, 1.5 * v) for v in th))
         return EffectModel(name, tuple(f"delay_{a}_s" for a in axes), th, step, np.zeros(len(axes)),
                            np.full(len(axes), 2.4e-3),
                            lambda t: [{"name": "sensor_delay", "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
-                           {"axes": axes})
+                           {"axes": axes}, grid=grid)
     if name == "sensor_gain":
         th = np.array([float(hints.get("gain_" + a, 1.0)) - 1.0 for a in axes])
         step = np.maximum(0.2 * np.abs(th), 5e-3)
+        # scan: steps of 0.005 over gain 0.7-1.3 (further when the evidence points further)
+        grid = tuple(np.arange(min(-0.3, 1.5 * v), max(0.3, 1.5 * v) + 1e-9, 0.005) for v in th)
         return EffectModel(name, tuple(f"gain_{a}_minus_1" for a in axes), th, step, np.full(len(axes), -0.9),
                            np.full(len(axes), 9.0),
                            lambda t: [{"name": "sensor_gain", "axis": a, "gain": float(1.0 + v)} for a, v in zip(axes, t)],
-                           {"axes": axes})
+                           {"axes": axes}, grid=grid)
     if name == "static_load":
         def build(t, axes=axes):
             f = dict(zip(axes, (float(v) for v in t)))
@@ -120,7 +132,8 @@ def restart(model: EffectModel, theta: np.ndarray) -> EffectModel:
     """The same parameterisation started at ``theta`` (to refit with other effects present)."""
     import dataclasses
 
-    return dataclasses.replace(model, theta0=np.asarray(theta, float).copy(), fixed={**model.fixed, "null_start": False})
+    return dataclasses.replace(model, theta0=np.asarray(theta, float).copy(), fixed={**model.fixed, "null_start": False},
+                               grid=None)
 
 
 def combine(models: list) -> EffectModel:
@@ -136,7 +149,9 @@ def combine(models: list) -> EffectModel:
                        np.concatenate([m.theta0 for m in models]), np.concatenate([m.step for m in models]),
                        np.concatenate([m.lower for m in models]), np.concatenate([m.upper for m in models]),
                        build, {"null_start": all(bool(np.all(m.theta0 == 0) or m.fixed.get("null_start")) for m in models)},
-                       smooth=all(m.smooth for m in models))
+                       smooth=all(m.smooth for m in models),
+                       grid=(tuple(g for m in models for g in (m.grid or (None,) * len(m.params)))
+                             if any(m.grid for m in models) else None))
 
 
 def split_fit(fr, models: list) -> list:

@@ -125,6 +125,10 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
     z_crit = float(stats.norm.isf(settings.alpha_accept))
     claim_crit = float(stats.chi2.isf(settings.alpha_evidence, 2))
     rejected: dict[str, int] = {}
+    # a candidate whose model touches the backup bearing is implausible unless the measured
+    # rotor did too (radial measured position within 5 % of the clearance)
+    clearance = float(replay.cfg["table1"]["backup_clearance_m"])
+    measured_contact = bool(np.max(np.hypot(rec.channels["x_meas"], rec.channels["y_meas"])) >= 0.95 * clearance)
     for rnd in range(settings.max_effects + 1):
         t0 = time.perf_counter()
         ft = compute_features(rec, fit_frame, meas_v, base_v, settings)
@@ -186,8 +190,8 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
                 claims[n] = (c_before, c_after)
                 if c_after > max(claim_crit, 0.01 * c_before):
                     reasons.append(f"the signature of {n} remains after the fit (claim chi2 {c_before:.3g} -> {c_after:.3g})")
-            if cand_ch.get("delevitated"):
-                reasons.append("the model with it delevitates")
+            if cand_ch.get("delevitated") and not measured_contact:
+                reasons.append("the model with it delevitates (the measured rotor does not)")
             entry = {"name": "+".join(names) + (" (accepted effects refitted)" if repolish else ""),
                      "theta": dict(zip(fr.model.params, fr.theta.tolist())),
                      "se": dict(zip(fr.model.params, fr.se.tolist())), "sims": fr.sims, "iterations": fr.iterations,
