@@ -194,3 +194,22 @@ def test_self_sensed_axis_under_current_pulses(tmp_path, cfg):
     check_recovered(true, rep)
     check_error_drop(rep)
     assert rep["unexplained"] is False, rep["summary"]
+
+
+def test_effect_without_a_significant_signature_is_found_by_fitting(tmp_path, cfg):
+    """A y-only sensor delay under current pulses: the y ratio estimate is too imprecise for
+    a significant signature, yet the time-domain residual is far above noise; fitting each
+    library effect must find it, say so in the notes, and explain the residual."""
+    exc = {"kind": "pulses", "point": "current", "axis": "both", "amplitude_a": 0.3, "min_width_s": 2e-4,
+           "max_width_s": 4e-3, "seed": 5}
+    true = {"name": "sensor_delay", "axis": "y", "delay_s": 5.0e-5}
+    p = tmp_path / "pulses_y.yaml"
+    p.write_text(yaml.safe_dump({"config": str(REPO / "config.yaml"), "experiment": exc, "duration_s": 1.2,
+                                 "effects": [true], "noise": NOISE}))
+    arrays, meta = rig_data(load_scenario(p))
+    rep = analyse(arrays, meta, cfg)
+    assert [e["name"] for e in rep["effects"]] == ["sensor_delay"], rep["summary"]
+    check_recovered(true, rep)
+    check_error_drop(rep)
+    assert rep["effects"][0]["fit"]["without_signature"] is True
+    assert any("no signature was significant" in n for n in rep["notes"])

@@ -93,7 +93,8 @@ def build_report(rec, split, nominal: dict, search, settings, source: str, timin
                         "fit_cost_ratio": fr.cost / fr.cost0 if fr.cost0 > 0 else 1.0,
                         "delta_bic": fr.delta_bic, "holdout_z": a["holdout"]["z"],
                         "explained_at_acceptance": a["holdout"]["explained"], "simulations": fr.sims,
-                        "round": a["round"]},
+                        "round": a["round"],
+                        "without_signature": bool(search.rounds[a["round"]].get("fallback"))},
                 **{k: v for k, v in e.items() if k not in ("name", "params", "uncertainty")},
             })
     effects.sort(key=lambda e: -e["error_reduction"])
@@ -122,7 +123,8 @@ def build_report(rec, split, nominal: dict, search, settings, source: str, timin
         "remaining_signature": _remaining(search.failures) if not search.consistent else {},
         "evidence": search.rounds[0]["evidence"] if search.rounds else {},
         "ranking": search.rounds[0]["ranking"] if search.rounds else [],
-        "rounds": [{"round": r["round"], "ranking": r["ranking"], "candidates": r["candidates"]} for r in search.rounds],
+        "rounds": [{"round": r["round"], "ranking": r["ranking"], "candidates": r["candidates"],
+                    "without_signature": bool(r.get("fallback"))} for r in search.rounds],
         "noise": {"views": sig0, "channels": sig_ch},
         "data": {"source": source, "duration_s": rec.duration_s, "fs_hz": fs, "excitation": rec.excitation,
                  "excited_axes": list(rec.excited_axes), "start": rec.start},
@@ -134,6 +136,9 @@ def build_report(rec, split, nominal: dict, search, settings, source: str, timin
         if ax not in rec.excited_axes:
             notes.append(f"axis {ax} is not excited: a sensor gain or delay on it leaves no trace in these data")
     for e in effects:
+        if e["fit"]["without_signature"]:
+            notes.append(f"{e['name']}: no signature was significant before fitting (round {e['fit']['round']}); "
+                         "it was found by fitting each library effect and rests on the held-out error alone")
         for p, ok in e["fit"]["identifiable"].items():
             if not ok:
                 notes.append(f"{e['name']}: parameter {p} is not identifiable from these data (no sensitivity)")

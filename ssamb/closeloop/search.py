@@ -3,7 +3,10 @@ r"""Greedy search: add library effects while the held-out error drops significan
 Round :math:`r` (base model = nominal model + the effects accepted so far):
 
 1. features of the base residual on the fitting part, evidence of every library effect,
-   candidates ranked by evidence (:mod:`ssamb.closeloop.signatures`);
+   candidates ranked by evidence (:mod:`ssamb.closeloop.signatures`); when no signature is
+   significant but the held-out residual is not noise, each library effect that needs no hint
+   from a signature is a candidate (a signature can drown in a noisy estimate while the
+   time-domain residual is plain; pairs are not tried then);
 2. the best-ranked ``candidates_per_round`` are fitted by simulation on the fitting part
    (:func:`ssamb.closeloop.fit.fit_effect`) and simulated over the whole record;
 3. a candidate passes when, on the held-out part, the improvement test is significant
@@ -144,6 +147,17 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
             out.nominal_features = hold_ft
         _log(progress, f"round {rnd}: evidence ranking {rank(ev) or 'none'}; held-out residual "
                        f"{'consistent with noise' if ok else 'not consistent with noise'} ({time.perf_counter() - t0:.1f} s)")
+        if not order and not ok and rnd < settings.max_effects:
+            # no signature stands out, yet the held-out residual is not noise (a signature can
+            # drown, e.g. a y-sensor delay under current pulses, whose ratio estimate is
+            # imprecise): fit the library effects that need no hint from a signature (not the
+            # unbalance, whose speed comes from a line), most evidence first, judged by the
+            # same held-out criteria
+            taken = {a["name"] for a in out.accepted}
+            order = [n for n in sorted(ev, key=lambda n: ev[n].log10_p)
+                     if n != "unbalance" and n not in taken and rejected.get(n, 0) == 0]
+            info["fallback"] = bool(order)
+            _log(progress, f"round {rnd}: no significant signature; fitting each of {order}")
         if (ok and rnd > 0) or not order or rnd == settings.max_effects:
             break
         sigma = ft.sigma
@@ -209,7 +223,8 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
 
         results = []
         retry = []
-        for name in order[: settings.candidates_per_round]:
+        fallback = bool(info.get("fallback"))
+        for name in (order if fallback else order[: settings.candidates_per_round]):
             r, why = attempt([name])
             if r is not None:
                 results.append(r)
@@ -224,7 +239,7 @@ def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, sett
                 r, _ = attempt([name], repolish=True)
                 if r is not None:
                     results.append(r)
-        if not results and len(order) >= 2:
+        if not results and len(order) >= 2 and not fallback:
             # no single effect explains its signature: two effects may hide each other (each
             # biases the other's fit); fit the leading pairs jointly
             smooth = [n for n in order[: settings.candidates_per_round]

@@ -106,6 +106,8 @@ def section_cells(closeloop_dir: str | Path, title: str = "Close the loop with m
         if C["unexplained"]:
             display(Markdown("**Unexplained residual** (no library effect accounts for it): "
                              + "; ".join(f"{t}: {len(v)} finding(s)" for t, v in C["remaining_signature"].items())))
+        if C.get("notes"):
+            display(Markdown("**Notes**: " + " ".join(f"({i + 1}) {n}." for i, n in enumerate(C["notes"]))))
         display(Image(filename=str(CL / "whiteness.png")))
         """),
     ]
