@@ -82,9 +82,10 @@ class FitResult:
 
 
 def _scan(replay, base_effects, model, meas_v, fit_sl, sigma, u, lo, hi, scan_s):
-    """Coordinate-wise global scan of the parameters that have a grid, each followed by a
-    bounded scalar refinement between the grid neighbours of its best point; the cost is
-    taken over the first ``scan_s`` seconds of the fitting part.  Returns (u, cost on the
+    """Coordinate-wise global scan of the parameters that have a grid (a coarse pass over
+    every 5th point, a fine pass around the best), each followed by a bounded scalar
+    refinement between the grid neighbours of its best point; the cost is taken over the
+    first ``scan_s`` seconds of the fitting part.  Returns (u, cost on the
     scan window, simulations)."""
     from scipy.optimize import minimize_scalar
 
@@ -105,14 +106,26 @@ def _scan(replay, base_effects, model, meas_v, fit_sl, sigma, u, lo, hi, scan_s)
         if g is None:
             continue
         ug = np.clip((np.asarray(g, float) - model.theta0[i]) / model.step[i], lo[i], hi[i])
-        cs = []
-        for v in ug:
-            uu = u.copy()
-            uu[i] = v
-            cs.append(cost(uu))
+        cs = np.full(len(ug), np.inf)
+
+        def at(j, i=i, ug=ug, cs=cs):
+            if not np.isfinite(cs[j]):
+                uu = u.copy()
+                uu[i] = ug[j]
+                cs[j] = cost(uu)
+            return cs[j]
+        # coarse pass (every 5th point); when nothing on it beats the local fit, the local
+        # fit is kept (a smooth cost: its minimum is global); else a fine pass around the best
+        coarse = list(range(0, len(ug), 5))
+        for j in coarse:
+            at(j)
+        k = int(np.nanargmin(cs))
+        if not cs[k] < best:
+            continue
+        for j in range(max(k - 5, 0), min(k + 6, len(ug))):
+            at(j)
         k = int(np.argmin(cs))
-        if cs[k] < best:
-            best, u[i] = cs[k], ug[k]
+        best, u[i] = cs[k], ug[k]
         a, b = ug[max(k - 1, 0)], ug[min(k + 1, len(ug) - 1)]
         if b > a:
             def f(x, i=i):
