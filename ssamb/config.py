@@ -214,18 +214,25 @@ def _split_override(text: str) -> tuple[str, Any]:
     return key.strip(), _parse_value(value.strip())
 
 
+def read_yaml_mapping(path: Path, label: str, error: type = ValueError) -> dict:
+    """The mapping in a YAML file; ``error(f"{label}: ...")`` when the file is missing, is not
+    valid YAML or does not hold a mapping at its top level."""
+    if not path.exists():
+        raise error(f"{label}: not found")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        raise error(f"{label}: not valid YAML ({' '.join(str(exc).split())})") from None
+    if not isinstance(data, dict):
+        raise error(f"{label}: top level must be a mapping")
+    return data
+
+
 def load_config(path: str | Path | None = None, overrides=None) -> dict:
     """Load, override and validate a configuration file (default: the repository's ``config.yaml``)."""
     path = Path(path) if path is not None else DEFAULT_CONFIG_PATH
-    if not path.exists():
-        raise ConfigError(f"config file '{path}': not found")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            cfg = yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"config file '{path}': not valid YAML ({exc})") from None
-    if not isinstance(cfg, dict):
-        raise ConfigError(f"config file '{path}': top level must be a mapping")
+    cfg = read_yaml_mapping(path, f"config file '{path}'", ConfigError)
     cfg = apply_overrides(cfg, overrides)
     validate_config(cfg)
     return cfg

@@ -385,7 +385,8 @@ _JIT = {}
 
 
 def _jit_kernels():
-    """Compile (once) numba versions of SIPPY's process- and predictor-form simulators."""
+    """Compile (once) a numba version of SIPPY's process-form simulator (the predictor form is
+    the process form with the outputs as extra inputs, :func:`_fast_predictor_form`)."""
     if "process" in _JIT:
         return _JIT
     try:
@@ -422,38 +423,7 @@ def _jit_kernels():
                 y[r, i] = acc
         return x, y
 
-    @numba.njit(cache=True)
-    def predictor(A_K, B_K, C, D, K, y, u, x0):  # pragma: no cover - compiled
-        n = A_K.shape[0]
-        m = B_K.shape[1]
-        l_ = C.shape[0]
-        ly = K.shape[1]
-        L = u.shape[1]
-        yh = np.zeros((l_, L))
-        x = np.zeros((n, L + 1))
-        for j in range(n):
-            x[j, 0] = x0[j]
-        for i in range(L):
-            for j in range(n):
-                acc = 0.0
-                for k in range(n):
-                    acc += A_K[j, k] * x[k, i]
-                for k in range(m):
-                    acc += B_K[j, k] * u[k, i]
-                for k in range(ly):
-                    acc += K[j, k] * y[k, i]
-                x[j, i + 1] = acc
-            for r in range(l_):
-                acc = 0.0
-                for k in range(n):
-                    acc += C[r, k] * x[k, i]
-                for k in range(m):
-                    acc += D[r, k] * u[k, i]
-                yh[r, i] = acc
-        return x, yh
-
     _JIT["process"] = process
-    _JIT["predictor"] = predictor
     return _JIT
 
 
@@ -474,9 +444,16 @@ def _fast_process_form(A, B, C, D, u, x0="None"):
 
 
 def _fast_predictor_form(A_K, B_K, C, D, K, y, u, x0="None"):
+    """Predictor form x[i+1] = A_K x[i] + B_K u[i] + K y[i], yhat[i] = C x[i] + D u[i]: the
+    process form driven by [u; y] with input matrix [B_K, K]; the state has L + 1 columns."""
     k = _jit_kernels()
     A_K, B_K, C, D, K, y, u = (_f64(m) for m in (A_K, B_K, C, D, K, y, u))
-    return k["predictor"](A_K, B_K, C, D, K, y, u, _x0vec(x0, A_K.shape[0]))
+    U = np.ascontiguousarray(np.vstack([u, y]))
+    B = np.ascontiguousarray(np.hstack([B_K, K]))
+    Da = np.ascontiguousarray(np.hstack([D, np.zeros((D.shape[0], K.shape[1]))]))
+    x, yh = k["process"](A_K, B, C, Da, U, _x0vec(x0, A_K.shape[0]))
+    x_end = A_K @ x[:, -1] + B @ U[:, -1]
+    return np.column_stack([x, x_end]), yh
 
 
 @contextlib.contextmanager

@@ -53,7 +53,6 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
 
 from .io import MEASURED_COLUMNS, versions
 
@@ -116,20 +115,14 @@ def load_scenario(path: str | Path) -> dict:
         Unknown or missing keys, an unknown effect or a missing effect parameter, bad noise;
         the message names the file and the key.
     """
-    from .config import ConfigError, load_config
+    from .config import ConfigError, load_config, read_yaml_mapping
     from .sim.effects import EffectError, validate_effect
 
     path = Path(path)
     src = str(path)
     if not path.exists():
         raise ScenarioError(f"{src}: scenario file not found")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            sc = yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        raise ScenarioError(f"{src}: not valid YAML ({' '.join(str(exc).split())})") from None
-    if not isinstance(sc, Mapping):
-        raise ScenarioError(f"{src}: top level must be a mapping")
+    sc = read_yaml_mapping(path, src, ScenarioError)
     for k in _TOP_REQUIRED:
         if k not in sc:
             raise ScenarioError(f"{src}: key '{k}' is missing (required)")

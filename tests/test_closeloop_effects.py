@@ -39,11 +39,19 @@ def cfg():
     return load_config()
 
 
-def rig(tmp: Path, effects: list, name: str = "s", noise: dict = NOISE, exc: dict = EXC):
+# the paper's identification experiment: rectangular current pulses before the amplifiers
+PULSES = {"kind": "pulses", "point": "current", "axis": "both", "amplitude_a": 0.3, "min_width_s": 2e-4,
+          "max_width_s": 4e-3, "seed": 5}
+
+
+def rig(tmp: Path, effects: list, name: str = "s", noise: dict = NOISE, exc: dict = EXC,
+        duration_s: float | None = None):
     """Rig data (arrays, meta) for a scenario with ``effects``."""
     p = tmp / f"{name}.yaml"
-    p.write_text(yaml.safe_dump({"config": str(REPO / "config.yaml"), "experiment": exc, "effects": effects,
-                                 "noise": noise}))
+    sc = {"config": str(REPO / "config.yaml"), "experiment": exc, "effects": effects, "noise": noise}
+    if duration_s is not None:
+        sc["duration_s"] = duration_s
+    p.write_text(yaml.safe_dump(sc))
     return rig_data(load_scenario(p))
 
 
@@ -182,13 +190,8 @@ def test_self_sensed_axis_under_current_pulses(tmp_path, cfg):
     trips the self-sensing estimator's residual gate at every pulse edge, so the replay of y is
     a discontinuous function of the y sensor parameters (a local fit stops in a ripple of the
     cost, 1 us from the start): the global scan must still recover a y-axis delay."""
-    exc = {"kind": "pulses", "point": "current", "axis": "both", "amplitude_a": 0.3, "min_width_s": 2e-4,
-           "max_width_s": 4e-3, "seed": 5}
     true = {"name": "sensor_delay", "axis": "both", "delay_s": 3.0e-5}
-    p = tmp_path / "pulses.yaml"
-    p.write_text(yaml.safe_dump({"config": str(REPO / "config.yaml"), "experiment": exc, "duration_s": 1.2,
-                                 "effects": [true], "noise": NOISE}))
-    arrays, meta = rig_data(load_scenario(p))
+    arrays, meta = rig(tmp_path, [true], name="pulses", exc=PULSES, duration_s=1.2)
     rep = analyse(arrays, meta, cfg)
     assert rep["ranking"][0] == "sensor_delay", rep["ranking"]
     check_recovered(true, rep)
@@ -200,16 +203,24 @@ def test_effect_without_a_significant_signature_is_found_by_fitting(tmp_path, cf
     """A y-only sensor delay under current pulses: the y ratio estimate is too imprecise for
     a significant signature, yet the time-domain residual is far above noise; fitting each
     library effect must find it, say so in the notes, and explain the residual."""
-    exc = {"kind": "pulses", "point": "current", "axis": "both", "amplitude_a": 0.3, "min_width_s": 2e-4,
-           "max_width_s": 4e-3, "seed": 5}
     true = {"name": "sensor_delay", "axis": "y", "delay_s": 5.0e-5}
-    p = tmp_path / "pulses_y.yaml"
-    p.write_text(yaml.safe_dump({"config": str(REPO / "config.yaml"), "experiment": exc, "duration_s": 1.2,
-                                 "effects": [true], "noise": NOISE}))
-    arrays, meta = rig_data(load_scenario(p))
+    arrays, meta = rig(tmp_path, [true], name="pulses_y", exc=PULSES, duration_s=1.2)
     rep = analyse(arrays, meta, cfg)
     assert [e["name"] for e in rep["effects"]] == ["sensor_delay"], rep["summary"]
     check_recovered(true, rep)
     check_error_drop(rep)
     assert rep["effects"][0]["fit"]["without_signature"] is True
     assert any("no signature was significant" in n for n in rep["notes"])
+
+
+def test_effect_that_makes_the_rig_touch_the_backup_bearing(tmp_path, cfg):
+    """A 10 % sensor gain error on both axes under current pulses destabilises the rig: the
+    measured rotor reaches the backup bearing. The model with the right effect touches too; that
+    must not count against it (only a model that touches when the rotor did not is implausible)."""
+    true = {"name": "sensor_gain", "axis": "both", "gain": 1.1}
+    arrays, meta = rig(tmp_path, [true], name="touch", exc=PULSES, duration_s=1.2)
+    clearance = cfg["table1"]["backup_clearance_m"]
+    assert np.max(np.hypot(arrays["x_meas"], arrays["y_meas"])) >= 0.95 * clearance
+    rep = analyse(arrays, meta, cfg)
+    assert rep["effects"] and rep["effects"][0]["name"] == "sensor_gain", rep["summary"]
+    check_recovered(true, rep)
