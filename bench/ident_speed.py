@@ -38,7 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from ssamb.ident import FS_HZ_DEFAULT, PAPER_ORDERS, SUBSYSTEMS, identify, subsystem_io  # noqa: E402
+from ssamb.identification import FS_HZ_DEFAULT, PAPER_ORDERS, SUBSYSTEMS, identify, subsystem_io  # noqa: E402
 
 REAL_DATA = ROOT / "results" / "sim" / "id_pulses.npz"
 
@@ -103,7 +103,7 @@ def _worker(args, queue):
     # warm-up outside the timing: SIPPY's import (control.matlab, ...) and the compiled kernels
     import sippy_unipi  # noqa: F401
 
-    from ssamb.ident import _jit_kernels
+    from ssamb.identification import _jit_kernels
 
     _jit_kernels()
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

@@ -26,7 +26,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ssamb.mu import mussv  # noqa: E402
-from ssamb.robust import frequency_response_matrix, mu_frequency_response  # noqa: E402
+from ssamb.robustness import frequency_response_matrix, mu_frequency_response  # noqa: E402
 
 
 def _crandn(rng, n):

@@ -14,7 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["identification_figures", "fig4", "fig9", "save"]
+__all__ = ["identification_figures", "fig4", "plot_weight", "fig7", "fig8", "fig9", "save"]
 
 _UNIT = {"x_meas": "um", "y_meas": "um", "y_ss": "um", "i_ypos": "A", "i_yneg": "A", "i_xpos": "A",
          "i_xneg": "A", "u_x": "A", "u_y": "A"}
@@ -34,7 +34,7 @@ def save(fig, path: str | Path) -> None:
 
 def identification_figures(info: Mapping, model, u_val, y_val, fs_hz: float, fig_dir: Path) -> None:
     """Order scan (validation fit and singular values vs order) and validation overlay."""
-    from .ident import auto_horizon
+    from .identification import auto_horizon
 
     fig_dir = Path(fig_dir)
     sub = info["subsystem"]
@@ -96,6 +96,57 @@ def fig4(nl: Mapping, lti: Mapping, fits: Mapping, path: str | Path) -> None:
     axs[-1].set_xlabel("time (s)")
     axs[0].set_title("Fig. 4 equivalent: response to current pulses injected before the amplifiers")
     fig.tight_layout()
+    save(fig, path)
+
+
+def plot_weight(ax, fit, etfe_freqs_hz=None, etfe_mag=None, *, unit: str = "m/A",
+                f_plot_hz: tuple[float, float] | None = None, title: str | None = None):
+    """Fig. 7 equivalent on a matplotlib axis: ETFE points, envelope, fitted |W| and the
+    +/- ``tol_db`` band around the envelope (:class:`ssamb.uncertainty.WeightFit`), log frequency
+    axis in Hz, magnitude in dB re 1 ``unit`` (the unit of the mismatch). ``etfe_*`` default to
+    the data stored in the envelope. Returns ``ax``."""
+    env = fit.envelope
+    fe = env.freqs_hz if etfe_freqs_hz is None else np.asarray(etfe_freqs_hz, float)
+    me = env.mag if etfe_mag is None else np.asarray(etfe_mag, float)
+    f_lo, f_hi = fit.band_hz
+    lo, hi = f_plot_hz if f_plot_hz is not None else (f_lo / 10.0, max(env.f_rolloff_hz, f_hi) * 10.0)
+    fp = np.logspace(np.log10(lo), np.log10(hi), 600)
+    fb = np.logspace(np.log10(f_lo), np.log10(f_hi), 300) if f_hi > f_lo else np.array([f_lo])
+    eb = env.db(fb)
+    ax.fill_between(fb, eb - fit.tol_db, eb + fit.tol_db, color="0.85", label=f"envelope ±{fit.tol_db:g} dB")
+    ax.semilogx(fp, env.db(fp), "k--", lw=1.0, label="peak envelope (extended)")
+    ax.semilogx(fp, fit.db(fp), "C0-", lw=1.8, label=f"|W| (order {fit.order}, max dev {fit.max_dev_db:.2f} dB)")
+    ax.semilogx(fe, 20 * np.log10(np.maximum(me, np.max(me) * 1e-12)), "C3o", ms=4,
+                label="ETFE |Y/X − Ȳ/X̄| (eq. 6)")
+    ax.set_xscale("log")
+    ax.set_xlabel("Frequency (Hz)")
+    ax.set_ylabel(f"Magnitude (dB re 1 {unit})")
+    if title:
+        ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    return ax
+
+
+def fig7(fit, freqs_hz, etfe_mag, unit: str, what: str, path: str | Path) -> None:
+    """Paper Fig. 7: the mismatch ETFE, its envelope and the fitted weight."""
+    fig, ax = plt.subplots(figsize=(8.5, 4.0))
+    plot_weight(ax, fit, freqs_hz, etfe_mag, unit=unit,
+                title=f"Fig. 7 equivalent: additive uncertainty weight, {what}")
+    save(fig, path)
+
+
+def fig8(sweep, case: str, path: str | Path) -> None:
+    """Paper Fig. 8: μ bounds over frequency (:class:`ssamb.robustness.MuSweep`) and the peak."""
+    fig, ax = plt.subplots(figsize=(8.5, 3.8))
+    ax.loglog(sweep.freqs_hz, sweep.upper, label="upper bound")
+    ax.loglog(sweep.freqs_hz, sweep.lower, "--", label="lower bound")
+    ax.axhline(1.0, color="k", lw=0.8)
+    ax.plot([sweep.peak_hz], [sweep.peak], "rv", label=f"peak {sweep.peak:.3g} at {sweep.peak_hz:.3g} Hz")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("mu (-)")
+    ax.set_title(f"Fig. 8 equivalent: mu for additive uncertainty, case '{case}'")
+    ax.legend(fontsize=8)
     save(fig, path)
 
 

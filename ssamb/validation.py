@@ -23,7 +23,7 @@ critical sweep amplitude is exactly :math:`c / \max_t \|p(t)\|` for the response
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Mapping
 
 import control
 import numpy as np
@@ -37,6 +37,9 @@ __all__ = [
     "lti_sweep_outcome",
     "critical_amplitude_lti",
     "critical_amplitude_bisect",
+    "sweep_models",
+    "lti_sweep",
+    "nonlinear_critical_amplitude",
 ]
 
 #: The fixed all-pass choices of Delta reported for the augmented model.
@@ -201,3 +204,58 @@ def critical_amplitude_bisect(delevitates: Callable[[float], bool], lo: float, h
         else:
             a = mid
     return {"amplitude_m": b, "bracket": [a, b], "evaluations": n}
+
+
+def sweep_models(plant, amplifier, selfsensing, weight: control.LTI, pid, allpass_hz: float) -> dict:
+    """The nominal closed loop and the augmented ones (self-sensing + :math:`W\\Delta` for each
+    :data:`DELTAS`), by name (``nominal LTI``, ``augmented, Delta=<kind>``)."""
+    from .channels import ONE
+    from .closed_loop import assemble_closed_loop
+
+    ss_sys = selfsensing.to_statespace()
+    ss_in = [c for c in selfsensing.input_names if c != ONE][0]
+    u_op = float(selfsensing.u_op[0]) if selfsensing.u_op is not None else 0.0
+    systems = {"nominal LTI": assemble_closed_loop(plant, amplifier, ss_sys, pid, pid)}
+    for d in DELTAS:
+        aug = augment_subsystem(ss_sys, weight, ss_in, "y_ss", u_op, delta=d, allpass_hz=allpass_hz)
+        systems[f"augmented, Delta={d}"] = assemble_closed_loop(plant, amplifier, aug, pid, pid)
+    return systems
+
+
+def lti_sweep(name: str, cl: control.StateSpace, ref: Mapping[str, np.ndarray], amplitude_m: float,
+              clearance_m: float, freq_at: Callable[[float], float]) -> tuple[SweepOutcome, dict | None]:
+    """Sweep response of one LTI closed loop driven by the recorded references ``ref`` (``t``,
+    ``r_x``, ``r_y``) from its operating point: its outcome (delevitation time and sweep
+    frequency, and the exact critical amplitude of :func:`critical_amplitude_lti`) and the
+    response (None for an unstable loop, whose outcome notes it)."""
+    from .closed_loop import lti_initial_state, simulate_closed_loop, stability
+
+    rep = stability(cl)
+    if not rep.stable:
+        return SweepOutcome(name, False, None, None, float("nan"),
+                            {"note": f"LTI model unstable ({rep}): no sweep response"}), None
+    x0 = lti_initial_state(cl, float(ref["r_x"][0]), float(ref["r_y"][0]))
+    out = simulate_closed_loop(cl, ref["t"], ref["r_x"], ref["r_y"], x0=x0)
+    oc = lti_sweep_outcome(name, out, clearance_m, freq_at)
+    if amplitude_m > 0:  # response per unit sweep amplitude about the operating point
+        x_op, y_op = float(out["x_meas"][0]), float(out["y_meas"][0])
+        oc.extra["critical_amplitude_m"] = critical_amplitude_lti(
+            (np.asarray(out["x_meas"]) - x_op) / amplitude_m, (np.asarray(out["y_meas"]) - y_op) / amplitude_m,
+            x_op, y_op, clearance_m)
+    return oc, out
+
+
+def nonlinear_critical_amplitude(sim_cfg: Mapping, experiment: str, clearance_m: float, amplitude_max_m: float,
+                                 rel_tol: float) -> dict:
+    """Bisection (:func:`critical_amplitude_bisect`) over nonlinear simulations of the sweep
+    experiment with its amplitude changed, from a quarter of the clearance to ``amplitude_max_m``."""
+    from .sim import simulate
+
+    spec = sim_cfg["experiments"][experiment]
+
+    def delevitates(a: float) -> bool:
+        exc = {**spec["excitation"], "amplitude_m": float(a)}
+        res = simulate(sim_cfg, experiment, excitation=exc, duration_s=spec["duration_s"], progress=False)
+        return res.meta["delevitation_s"] is not None
+
+    return critical_amplitude_bisect(delevitates, 0.25 * clearance_m, float(amplitude_max_m), rel_tol=float(rel_tol))

@@ -371,7 +371,9 @@ def test_plot_weight_draws_fig7(tmp_path):
     g = _fig7_like(F22)
     fit = un.fit_weight(F22, un.peak_envelope(F22, g), g)
     fig, ax = plt.subplots()
-    out = un.plot_weight(ax, fit, unit="m/A", title="Fig. 7")
+    from ssamb.figures import plot_weight
+
+    out = plot_weight(ax, fit, unit="m/A", title="Fig. 7")
     assert out is ax and ax.get_xscale() == "log"
     assert "m/A" in ax.get_ylabel() and "dB" in ax.get_ylabel()
     assert "Hz" in ax.get_xlabel()

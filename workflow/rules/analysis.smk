@@ -53,7 +53,6 @@ rule assemble:
         fig4=exp_file("assembly.fig4"),
     output:
         discrete="results/model/closed_loop.npz",
-        continuous="results/model/closed_loop_continuous.npz",
         json="results/model/assemble.json",
         fig="results/model/fig4.png",
     params:
@@ -130,7 +129,6 @@ rule mu:
 rule baseline:
     """ISO 14839-3 peak sensitivity per axis and classical margins (the baseline the paper argues against)."""
     input:
-        closed_loop="results/model/closed_loop.npz",
         models=expand("results/ident/{subsystem}.npz", subsystem=SUBSYSTEMS),
     output:
         json="results/mu/baseline.json",

@@ -11,7 +11,7 @@ def study_config(wildcards=None):
 
 
 rule study_point:
-    """The analysis chain for one value of the study parameter (ssamb.study.run_study_point)."""
+    """The analysis chain for one value of the study parameter (ssamb.stages.study.run_study_point)."""
     output:
         "results/study/point_{value}.json",
     params:

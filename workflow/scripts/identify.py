@@ -1,11 +1,8 @@
-"""Snakemake script: identify one subsystem (ssamb.identification_stage.run_identify)."""
-import os
+"""Snakemake script: identify one subsystem (ssamb.stages.identify.run_identify)."""
 import sys
 from pathlib import Path
 
-os.environ["OPENBLAS_NUM_THREADS"] = "1"  # reproducible (ill-conditioned amplifier) and faster in parallel
-
-from ssamb.identification_stage import run_identify  # noqa: E402
+from ssamb.stages.identify import run_identify
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log

@@ -1,10 +1,7 @@
-"""Snakemake script: mu for one uncertainty case (ssamb.robustness_stage.run_mu)."""
-import os
+"""Snakemake script: mu for one uncertainty case (ssamb.stages.mu.run_mu)."""
 import sys
 
-os.environ["OPENBLAS_NUM_THREADS"] = "1"  # small matrices: single-threaded BLAS is faster and stable
-
-from ssamb.robustness_stage import run_mu  # noqa: E402
+from ssamb.stages.mu import run_mu
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log

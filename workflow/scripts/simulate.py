@@ -1,12 +1,8 @@
-"""Snakemake script: simulate one experiment (thin wrapper around ssamb.sim.simulate)."""
+"""Snakemake script: simulate one experiment (ssamb.stages.simulate.run_simulate)."""
 import sys
 
-from ssamb.config import validate_config
-from ssamb.sim import simulate
+from ssamb.stages.simulate import run_simulate
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = log
-    cfg = snakemake.params.cfg  # noqa: F821
-    validate_config(cfg)
-    result = simulate(cfg, snakemake.wildcards.experiment, progress=True)  # noqa: F821
-    result.save(snakemake.output.npz)  # noqa: F821
+    run_simulate(snakemake.params.cfg, snakemake.wildcards.experiment, snakemake.output.npz, progress=True)  # noqa: F821

@@ -1,7 +1,7 @@
-"""Snakemake script: gather the parameter study (ssamb.study.collect_study)."""
+"""Snakemake script: gather the parameter study (ssamb.stages.study.collect_study)."""
 import sys
 
-from ssamb.study import collect_study
+from ssamb.stages.study import collect_study
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log

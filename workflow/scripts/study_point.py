@@ -1,10 +1,10 @@
-"""Snakemake script: one parameter-study point (ssamb.study.run_study_point)."""
+"""Snakemake script: one parameter-study point (ssamb.stages.study.run_study_point)."""
 import os
 import sys
 
 os.environ["OPENBLAS_NUM_THREADS"] = "1"
 
-from ssamb.study import run_study_point  # noqa: E402
+from ssamb.stages.study import run_study_point  # noqa: E402
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log

@@ -1,8 +1,8 @@
-"""Snakemake script: results/summary.json (ssamb.report.write_summary)."""
+"""Snakemake script: results/summary.json (ssamb.stages.summary.write_summary)."""
 import sys
 from pathlib import Path
 
-from ssamb.report import write_summary
+from ssamb.stages.summary import write_summary
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log

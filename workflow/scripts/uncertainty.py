@@ -1,7 +1,7 @@
-"""Snakemake script: uncertainty weight of one subsystem (ssamb.robustness_stage.run_uncertainty)."""
+"""Snakemake script: uncertainty weight of one subsystem (ssamb.stages.uncertainty.run_uncertainty)."""
 import sys
 
-from ssamb.robustness_stage import run_uncertainty
+from ssamb.stages.uncertainty import run_uncertainty
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log

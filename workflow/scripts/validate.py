@@ -1,8 +1,8 @@
-"""Snakemake script: sweep validation (ssamb.validation_stage.run_validate)."""
+"""Snakemake script: sweep validation (ssamb.stages.validate.run_validate)."""
 import sys
 from pathlib import Path
 
-from ssamb.validation_stage import run_validate
+from ssamb.stages.validate import run_validate
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log

@@ -27,90 +27,50 @@ Blocks follow MATLAB's ``mussv`` convention: ``[r, c]`` is an r-by-c full comple
 """
 from __future__ import annotations
 
-import warnings
-from dataclasses import dataclass
 from typing import Mapping
 
 import control
 import numpy as np
 
-from .ident import CURRENTS
-from .loop import as_statespace
+from .channels import CURRENTS, DELTA_CHANNELS, ONE, delta_channels
+from .closed_loop import as_statespace, fig3_loop
 
-__all__ = ["CASES", "CASE_CHANNELS", "case_channels", "uncertainty_loop", "case_structure", "n11_function"]
+__all__ = ["CASES", "case_subsystems", "case_structure", "uncertainty_loop", "n11_function"]
 
-#: subsystem -> (Delta inputs u, Delta outputs d (names of the signals d is added to), block)
-CASE_CHANNELS = {
-    "selfsensing": (("i_ypos",), ("y_ss",)),
-    "amplifier": (("u_x_cmd", "u_y_cmd"), CURRENTS),
-    "plant": (CURRENTS, ("x_meas", "y_meas")),
-}
+#: The uncertainty cases: one subsystem, or all three block-diagonally.
 CASES = ("selfsensing", "amplifier", "plant", "all")
+#: Loop outputs: every candidate Delta input (both self-sensing inputs, commands, currents).
+_DELTA_INPUTS = ("i_ypos", "u_x_cmd", "u_y_cmd") + CURRENTS[1:] + ("x_meas", "y_meas")
+#: Subsystem outputs that carry a disturbance (each Delta output d).
+_DISTURBED = ("x_meas", "y_meas") + CURRENTS + ("y_ss",)
 
 
-def _subsystems_for(case: str) -> tuple[str, ...]:
+def case_subsystems(case: str) -> tuple[str, ...]:
+    """The subsystems whose uncertainty a case contains (block order of N11)."""
     if case == "all":
         return ("selfsensing", "amplifier", "plant")
-    if case not in CASE_CHANNELS:
+    if case not in DELTA_CHANNELS:
         raise ValueError(f"uncertainty case '{case}': must be one of {', '.join(CASES)}")
     return (case,)
 
 
 def case_structure(case: str) -> list[list[int]]:
     """``mussv`` block structure of a case (one full complex block per subsystem)."""
-    return [[len(CASE_CHANNELS[k][1]), len(CASE_CHANNELS[k][0])] for k in _subsystems_for(case)]
-
-
-def case_channels(loop: control.StateSpace) -> dict:
-    """Channel sets of the uncertainty cases for the models in ``loop`` (see the table above;
-    the self-sensing Delta input is whatever the self-sensing model reads)."""
-    ss_in = loop.info_ss_input if hasattr(loop, "info_ss_input") else "i_ypos"
-    out = dict(CASE_CHANNELS)
-    out["selfsensing"] = ((ss_in,), ("y_ss",))
-    return out
+    return [[len(DELTA_CHANNELS[k][1]), len(DELTA_CHANNELS[k][0])] for k in case_subsystems(case)]
 
 
 def uncertainty_loop(plant, amplifier, selfsensing, pid_x, pid_y) -> control.StateSpace:
     r"""The closed loop of Fig. 3 with additive disturbance inputs at every subsystem output.
 
-    Inputs: ``d_y_ss``, ``d_i_ypos`` ... ``d_i_xneg``, ``d_x_meas``, ``d_y_meas`` (each added to
+    Inputs: ``d_x_meas``, ``d_y_meas``, ``d_i_ypos`` ... ``d_i_xneg``, ``d_y_ss`` (each added to
     the named subsystem output); outputs: every candidate uncertainty input (``i_ypos``,
-    ``u_x_cmd``, ``u_y_cmd``, the four currents). The affine ``one`` input is left out: the
-    transfer functions are about the operating point. Discrete, at the models' dt.
+    ``u_x_cmd``, ``u_y_cmd``, the four currents, the positions). References, injections and the
+    affine ``one`` stay open: the transfer functions are about the operating point. Discrete, at
+    the models' dt (:func:`ssamb.closed_loop.fig3_loop`).
     """
-    P = as_statespace(plant, name="plant")
-    G = as_statespace(amplifier, name="amplifier")
-    S = as_statespace(selfsensing, name="selfsensing")
-    Cx = as_statespace(pid_x, inputs=["e_x"], outputs=["u_x"], name="pid_x")
-    Cy = as_statespace(pid_y, inputs=["e_y"], outputs=["u_y"], name="pid_y")
-    dt = float(P.dt)
-
-    def renamed(sys, outs_nom):
-        return control.ss(sys.A, sys.B, sys.C, sys.D, dt, inputs=list(sys.input_labels),
-                          outputs=[o + "_nom" for o in outs_nom], name=sys.name)
-
-    blocks = [renamed(P, P.output_labels), renamed(G, G.output_labels), renamed(S, S.output_labels),
-              control.ss(Cx.A, Cx.B, Cx.C, Cx.D, dt, inputs=["e_x"], outputs=["u_x"], name="pid_x"),
-              control.ss(Cy.A, Cy.B, Cy.C, Cy.D, dt, inputs=["e_y"], outputs=["u_y"], name="pid_y")]
-    d_inputs = []
-    for sig in list(P.output_labels) + list(G.output_labels) + list(S.output_labels):
-        blocks.append(control.summing_junction(inputs=[sig + "_nom", "d_" + sig], output=sig, dt=dt,
-                                               name="add_" + sig))
-        d_inputs.append("d_" + sig)
-    blocks += [
-        control.summing_junction(inputs=["-x_meas"], output="e_x", dt=dt, name="sum_ex"),
-        control.summing_junction(inputs=["-y_ss"], output="e_y", dt=dt, name="sum_ey"),
-        control.summing_junction(inputs=["u_x"], output="u_x_cmd", dt=dt, name="sum_ux"),
-        control.summing_junction(inputs=["u_y"], output="u_y_cmd", dt=dt, name="sum_uy"),
-    ]
-    outs = ["i_ypos", "u_x_cmd", "u_y_cmd"] + [c for c in CURRENTS if c != "i_ypos"] + ["x_meas", "y_meas"]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        # the affine input 'one' stays unconnected (zero): deviation model
-        sys = control.interconnect(blocks, inplist=d_inputs, inputs=d_inputs, outlist=outs, outputs=outs,
-                                   name="uncertainty_loop")
-    loop = control.ss(sys.A, sys.B, sys.C, sys.D, dt, inputs=d_inputs, outputs=outs, name=sys.name)
-    loop.info_ss_input = [c for c in S.input_labels if c != "one"][0]
+    loop = fig3_loop(plant, amplifier, selfsensing, pid_x, pid_y, inputs=["d_" + d for d in _DISTURBED],
+                     outputs=_DELTA_INPUTS, disturbed=_DISTURBED, name="uncertainty_loop")
+    loop.info_ss_input = [c for c in as_statespace(selfsensing).input_labels if c != ONE][0]
     return loop
 
 
@@ -122,11 +82,10 @@ def n11_function(loop: control.StateSpace, weights: Mapping[str, control.LTI], c
     continuous equivalent (evaluated at :math:`s = j\omega`); the weights are continuous.
     Rows: Delta inputs u in block order; columns: Delta outputs d in block order.
     """
-    subs = _subsystems_for(case)
-    channels = case_channels(loop)
+    ss_in = getattr(loop, "info_ss_input", "i_ypos")
     rows, cols, wrow = [], [], []
-    for k in subs:
-        u, d = channels[k]
+    for k in case_subsystems(case):
+        u, d = delta_channels(k, ss_in)
         if k not in weights:
             raise ValueError(f"no uncertainty weight for subsystem '{k}'")
         rows += list(u)

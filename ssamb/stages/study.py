@@ -19,19 +19,20 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .config import apply_overrides, validate_config
-from .io import read_json, write_json
+from ..config import apply_overrides, validate_config
+from ..io import read_json, write_json
 
 __all__ = ["run_study_point", "collect_study"]
 
 
 def run_study_point(cfg: Mapping, parameter: str, value: float, out_json: str | Path) -> dict:
     """Run the chain for ``cfg`` with ``parameter`` (dotted key) set to ``value``; write a JSON."""
-    from .assembly_stage import run_assemble
-    from .identification_stage import run_identify
-    from .robustness_stage import run_mu, run_uncertainty
-    from .sim import simulate
-    from .validation_stage import run_validate
+    from ..sim import simulate
+    from .assemble import run_assemble
+    from .identify import run_identify
+    from .mu import run_mu
+    from .uncertainty import run_uncertainty
+    from .validate import run_validate
 
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     t0 = time.perf_counter()
@@ -48,12 +49,12 @@ def run_study_point(cfg: Mapping, parameter: str, value: float, out_json: str | 
             res = simulate(c, e, progress=False)
             res.save(d / f"{e}.npz")
             delev[e] = res.meta["delevitation_s"]
-        models, paper = {}, {}
+        models = {}
         for sub in ("plant", "amplifier", "selfsensing"):
             run_identify(d / f"{idc['estimation']}.npz", d / f"{idc['validation']}.npz", sub, idc,
                          d / f"{sub}.npz", d / f"{sub}_ev.json", d / f"{sub}_paper.npz")
             models[sub] = d / f"{sub}.npz"
-        asm = run_assemble(models, {}, d / f"{c['assembly']['fig4']}.npz", c, d / "cl.npz", d / "clc.npz",
+        asm = run_assemble(models, {}, d / f"{c['assembly']['fig4']}.npz", c, d / "cl.npz",
                            d / "asm.json", None, c["assembly"]["continuous_method"])
         out = {"parameter": parameter, "value": value, "stable": asm["stable"], "fit_pct": asm["fit_pct"],
                "identification_delevitated": {k: v for k, v in delev.items() if v is not None}}
@@ -85,7 +86,7 @@ def collect_study(point_jsons: Sequence[str | Path], out_json: str | Path, out_f
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        from .figures import save
+        from ..figures import save
 
         v = np.array([p["value"] for p in pts])
         fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))

@@ -1,4 +1,4 @@
-"""Tests of ssamb.ident: SIPPY wrapper on synthetic systems, fit metric, operating point, files."""
+"""Tests of ssamb.identification: SIPPY wrapper on synthetic systems, fit metric, operating point, files."""
 from __future__ import annotations
 
 import json
@@ -9,20 +9,19 @@ import pytest
 import scipy.signal
 
 from ssamb.io import DataError
-from ssamb.ident import (
+from ssamb.identification import (
     IdentifiedModel,
     auto_horizon,
     check_io_data,
     compare_methods,
     identify,
     input_excitation,
-    load_model,
     nrmse_fit,
     order_scan,
-    save_model,
     subspace_singular_values,
     subsystem_io,
 )
+from ssamb.model_io import load_model, save_model
 
 # ---------------------------------------------------------------------------------------
 # a known stable MIMO system (2 inputs, 2 outputs, order 4) with an operating point
@@ -360,26 +359,28 @@ def test_subsystem_io_columns():
     p = subsystem_io(arr, "plant")
     assert p.input_names == ("i_ypos", "i_yneg", "i_xpos", "i_xneg") and p.output_names == ("x_meas", "y_meas")
     np.testing.assert_array_equal(p.u[:, 1], arr["i_yneg"])
-    a = subsystem_io(arr, "amplifier")
+    a = subsystem_io(arr, "amplifier", "full")  # the paper's 4-input amplifier
     np.testing.assert_array_equal(a.u[:, 0], arr["u_x"] + arr["inj_x"])
     np.testing.assert_array_equal(a.u[:, 1], arr["u_y"] + arr["inj_y"])
     np.testing.assert_array_equal(a.u[:, 3], arr["y_meas"])
     assert a.y.shape == (n, 4)
-    u, y, ins, outs = subsystem_io(arr, "selfsensing")
+    u, y, ins, outs = subsystem_io(arr, "selfsensing", "current")
     assert ins == ("i_ypos",) and outs == ("y_ss",) and u.shape == (n, 1)
+    assert subsystem_io(arr, "selfsensing").input_names == ("y_meas",)  # ours: DCM as a sensor
+    assert subsystem_io(arr, "amplifier").input_names == ("u_x_cmd", "u_y_cmd")
     del arr["inj_x"]
     np.testing.assert_array_equal(subsystem_io(arr, "amplifier").u[:, 0], arr["u_x"])
     del arr["i_yneg"]
     with pytest.raises(DataError, match="i_yneg"):
         subsystem_io(arr, "plant")
-    with pytest.raises(ValueError, match="unknown subsystem"):
+    with pytest.raises(ValueError, match="subsystem 'rotor'"):
         subsystem_io(arr, "rotor")
 
 
 def test_fast_simulators_equal_sippy():
     from sippy_unipi.functionsetSIM import SS_lsim_predictor_form, SS_lsim_process_form
 
-    from ssamb.ident import _fast_predictor_form, _fast_process_form
+    from ssamb.identification.sippy_fast import _fast_predictor_form, _fast_process_form
 
     rng = np.random.default_rng(1)
     n, m, l_, N = 3, 2, 2, 50

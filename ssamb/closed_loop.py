@@ -1,14 +1,12 @@
-r"""Closed-loop LTI assembly of the identified subsystems (paper Fig. 3) and d2c conversion.
+r"""The closed loop of the identified subsystems (paper Fig. 3), its simulation and d2c.
 
-Signal flow (all discrete, dt = 1/fs)::
+:func:`fig3_loop` is the one builder of the Fig. 3 loop (signal names and flow in
+:mod:`ssamb.channels`); the nominal closed loop (:func:`assemble_closed_loop`), the loop
+transfer of one axis (:func:`loop_transfer`, for margins and the ISO 14839-3 sensitivity) and
+the generalized plant with disturbance channels (:mod:`ssamb.generalized_plant`) are views of
+it. All discrete, dt = 1/fs.
 
-    e_x = r_x - x_meas  --PID_x-->  u_x ;  u_x_cmd = u_x + inj_x
-    e_y = r_y - y_ss    --PID_y-->  u_y ;  u_y_cmd = u_y + inj_y
-    (u_x_cmd, u_y_cmd, x_meas, y_meas) --amplifier--> (i_ypos, i_yneg, i_xpos, i_xneg)
-    (i_ypos, i_yneg, i_xpos, i_xneg)   --plant-->     (x_meas, y_meas)
-    i_ypos                             --selfsensing--> y_ss
-
-The identified models are affine (input ``one``, see :mod:`ssamb.ident`); the closed loop
+The identified models are affine (input ``one``, see :mod:`ssamb.identification`); the closed loop
 then has the inputs ``r_x, r_y, inj_x, inj_y, one`` and the caller sets ``one = 1``. Its
 operating point is the equilibrium :math:`x_{eq} = (I - A_{cl})^{-1} B_{cl} w_0`; the PID
 integrators settle where ``x_meas = r_x`` and ``y_ss = r_y``.
@@ -34,7 +32,6 @@ Either way a discrete pole error :math:`\delta z` becomes :math:`\delta s \appro
 """
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 from typing import Mapping, Sequence
@@ -43,16 +40,18 @@ import control
 import numpy as np
 import scipy.linalg
 
-from .ident import CURRENTS, ONE, IdentifiedModel
+from .channels import CL_INPUTS, CL_OUTPUTS, CURRENTS, FEEDBACK, ONE, POSITIONS
+from .identification import IdentifiedModel
 
 __all__ = [
-    "CL_INPUTS",
-    "CL_OUTPUTS",
     "StabilityReport",
     "as_statespace",
+    "fig3_loop",
     "assemble_closed_loop",
+    "loop_transfer",
     "stability",
     "equilibrium",
+    "lti_initial_state",
     "simulate_closed_loop",
     "replay",
     "to_continuous",
@@ -60,15 +59,10 @@ __all__ = [
     "d2c_pole_sensitivity",
 ]
 
-#: Closed-loop inputs (``one`` only if a subsystem is affine).
-CL_INPUTS = ("r_x", "r_y", "inj_x", "inj_y", ONE)
-#: Closed-loop outputs, named as the columns of the nonlinear data.
-CL_OUTPUTS = ("x_meas", "y_meas", "y_ss") + CURRENTS + ("u_x", "u_y")
-
 
 def as_statespace(sys, inputs: Sequence[str] | None = None, outputs: Sequence[str] | None = None,
                   name: str | None = None) -> control.StateSpace:
-    """A named ``control.StateSpace`` from an :class:`~ssamb.ident.IdentifiedModel` or a
+    """A named ``control.StateSpace`` from an :class:`~ssamb.identification.IdentifiedModel` or a
     StateSpace (renamed if ``inputs``/``outputs`` are given)."""
     if isinstance(sys, IdentifiedModel):
         sys = sys.to_statespace()
@@ -113,74 +107,105 @@ def stability(sys: control.StateSpace) -> StabilityReport:
     return StabilityReport(rho, rho < 1.0, ev[np.abs(ev) >= 1.0], float(sys.dt))
 
 
-def assemble_closed_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, require_stable: bool = False,
-                         name: str = "amb_lti") -> control.StateSpace:
-    """Interconnect the subsystems and the two PIDs into the closed loop of Fig. 3.
-
-    Parameters
-    ----------
-    plant : IdentifiedModel or StateSpace
-        Inputs ``i_ypos, i_yneg, i_xpos, i_xneg`` (+ ``one``), outputs ``x_meas, y_meas``.
-    amplifier : IdentifiedModel or StateSpace
-        Inputs ``u_x_cmd, u_y_cmd`` and optionally ``x_meas, y_meas`` (the paper's 4-input
-        model) (+ ``one``), outputs the 4 currents.
-    selfsensing : IdentifiedModel or StateSpace
-        One input, ``i_ypos`` (the paper's structure) or ``y_meas`` (DCM as a position sensor)
-        (+ ``one``), output ``y_ss``.
-    pid_x, pid_y : StateSpace
-        SISO discrete controllers (e.g. :func:`ssamb.sim.controller.pid_discrete`), error in,
-        current out; renamed ``e_x -> u_x`` and ``e_y -> u_y``.
-    require_stable : bool
-        Raise ``ValueError`` if the closed loop is unstable (otherwise a warning).
-
-    Returns
-    -------
-    control.StateSpace
-        Inputs ``r_x, r_y, inj_x, inj_y`` (+ ``one``), outputs :data:`CL_OUTPUTS`;
-        ``stability(sys)`` reports the spectral radius.
-
-    Raises
-    ------
-    ValueError
-        Mixed sampling times, wrong signal names, an algebraic loop (D-matrices closing a loop:
-        identify the amplifier or self-sensing strictly proper, ``D_required=False``), or an
-        unstable loop with ``require_stable``.
-    """
+def _subsystems(plant, amplifier, selfsensing, pid_x, pid_y) -> list[control.StateSpace]:
+    """The five blocks of Fig. 3, named, checked and on one numeric dt."""
     P = as_statespace(plant, name="plant")
     G = as_statespace(amplifier, name="amplifier")
     S = as_statespace(selfsensing, name="selfsensing")
     Cx = as_statespace(pid_x, inputs=["e_x"], outputs=["u_x"], name="pid_x")
     Cy = as_statespace(pid_y, inputs=["e_y"], outputs=["u_y"], name="pid_y")
-    _check_names(P, "plant", CURRENTS, ("x_meas", "y_meas"))
-    _check_names(G, "amplifier", ("u_x_cmd", "u_y_cmd"), CURRENTS, optional_inputs=("x_meas", "y_meas"))
+    _check_names(P, "plant", CURRENTS, POSITIONS)
+    _check_names(G, "amplifier", ("u_x_cmd", "u_y_cmd"), CURRENTS, optional_inputs=POSITIONS)
     if len([c for c in S.input_labels if c != ONE]) != 1:
         raise ValueError(f"selfsensing: must be SISO (one input besides '{ONE}'), got {S.input_labels}")
     _check_names(S, "selfsensing", (), ("y_ss",), optional_inputs=("i_ypos", "y_meas"))
     for sysname, s in (("pid_x", Cx), ("pid_y", Cy)):
         if s.ninputs != 1 or s.noutputs != 1:
             raise ValueError(f"{sysname} must be SISO")
-    dts = {n: s.dt for n, s in (("plant", P), ("amplifier", G), ("selfsensing", S), ("pid_x", Cx), ("pid_y", Cy))}
+    blocks = (P, G, S, Cx, Cy)
+    dts = {s.name: s.dt for s in blocks}
     if any(dt in (None, 0, True) for dt in dts.values()):
         raise ValueError(f"all subsystems must be discrete with a numeric dt; got {dts}")
-    dt0 = float(dts["plant"])
+    dt0 = float(P.dt)
     if any(abs(float(dt) - dt0) > 1e-9 * dt0 for dt in dts.values()):
         raise ValueError(f"subsystems have different sampling times: {dts}")
-    dt_common = dt0  # one numeric dt for all (interconnect insists on equal dt)
-    systems = [control.ss(s.A, s.B, s.C, s.D, dt_common, inputs=s.input_labels, outputs=s.output_labels,
-                          name=s.name) for s in (P, G, S, Cx, Cy)]
-    sums = [
-        control.summing_junction(inputs=["r_x", "-x_meas"], output="e_x", dt=dt_common, name="sum_ex"),
-        control.summing_junction(inputs=["r_y", "-y_ss"], output="e_y", dt=dt_common, name="sum_ey"),
-        control.summing_junction(inputs=["u_x", "inj_x"], output="u_x_cmd", dt=dt_common, name="sum_ux"),
-        control.summing_junction(inputs=["u_y", "inj_y"], output="u_y_cmd", dt=dt_common, name="sum_uy"),
-    ]
-    has_one = any(ONE in s.input_labels for s in systems)
-    inputs = [c for c in CL_INPUTS if c != ONE or has_one]
+    return [control.ss(s.A, s.B, s.C, s.D, dt0, inputs=s.input_labels, outputs=s.output_labels, name=s.name)
+            for s in blocks]
+
+
+def _junctions(dt: float, open_at: str | None) -> list:
+    """Summing junctions of Fig. 3: errors (or the loop break) and commands."""
+    sums = []
+    for axis in ("x", "y"):
+        if axis == open_at:
+            sums.append(control.summing_junction(inputs=[f"e_{axis}_in"], output=f"e_{axis}", dt=dt,
+                                                 name=f"sum_e{axis}"))
+        else:
+            sums.append(control.summing_junction(inputs=[f"r_{axis}", "-" + FEEDBACK[axis]], output=f"e_{axis}",
+                                                 dt=dt, name=f"sum_e{axis}"))
+        sums.append(control.summing_junction(inputs=[f"u_{axis}", f"inj_{axis}"], output=f"u_{axis}_cmd", dt=dt,
+                                             name=f"sum_u{axis}"))
+    return sums
+
+
+def fig3_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, inputs: Sequence[str] | None = None,
+              outputs: Sequence[str] = CL_OUTPUTS, disturbed: Sequence[str] = (), open_at: str | None = None,
+              name: str = "amb_lti") -> control.StateSpace:
+    r"""The closed loop of Fig. 3 -- the one builder every stage uses.
+
+    Parameters
+    ----------
+    plant, amplifier, selfsensing : IdentifiedModel or StateSpace
+        Subsystem models named as in :mod:`ssamb.channels` (plant: currents -> ``x_meas,
+        y_meas``; amplifier: ``u_x_cmd, u_y_cmd`` [+ ``x_meas, y_meas``] -> currents;
+        self-sensing: ``y_meas`` or ``i_ypos`` -> ``y_ss``; each may be affine with ``one``).
+    pid_x, pid_y : StateSpace
+        SISO discrete controllers (error in, current out).
+    inputs : sequence of str, optional
+        External inputs, from ``r_x, r_y, inj_x, inj_y, one``, ``d_<signal>`` of every disturbed
+        signal and ``e_<axis>_in`` of an open loop. Default: every one of them that exists.
+        The others stay deliberately open (zero) and are exempt from python-control's
+        unused-signal check; every other unconnected signal still raises its warning.
+    outputs : sequence of str
+        Any subsystem signal (default :data:`~ssamb.channels.CL_OUTPUTS`).
+    disturbed : sequence of str
+        Subsystem outputs :math:`s` that get an additive input, :math:`s = \bar s + d_s` (the
+        disturbance channels of the generalized plant, Figs. 5-6).
+    open_at : {None, 'x', 'y'}
+        Break the loop at that axis' controller input: the error is the external input
+        ``e_<axis>_in`` and the feedback signal :math:`y` (:data:`~ssamb.channels.FEEDBACK`) an
+        output, so the loop transfer is :math:`L = y/e_{in}` and, closed by :math:`e = r - y`,
+        :math:`S = 1/(1 + L)`.
+
+    Raises
+    ------
+    ValueError
+        Mixed sampling times, wrong signal names, or an algebraic loop (D-matrices closing a
+        loop: identify the amplifier or self-sensing strictly proper, ``D_required=False``).
+    """
+    blocks = _subsystems(plant, amplifier, selfsensing, pid_x, pid_y)
+    dt = float(blocks[0].dt)
+    for i, b in enumerate(blocks[:3]):
+        outs = [o + "_nom" if o in disturbed else o for o in b.output_labels]
+        blocks[i] = control.ss(b.A, b.B, b.C, b.D, dt, inputs=b.input_labels, outputs=outs, name=b.name)
+    own = {o for b in blocks[:3] for o in b.output_labels}
+    unknown = [d for d in disturbed if d + "_nom" not in own]
+    if unknown:
+        raise ValueError(f"disturbed signals {unknown} are not subsystem outputs")
+    blocks += [control.summing_junction(inputs=[d + "_nom", "d_" + d], output=d, dt=dt, name="add_" + d)
+               for d in disturbed]
+    blocks += _junctions(dt, open_at)
+    has_one = any(ONE in b.input_labels for b in blocks[:3])
+    available = [c for c in CL_INPUTS if (c != ONE or has_one) and c != f"r_{open_at}"]
+    available += ["d_" + d for d in disturbed] + ([f"e_{open_at}_in"] if open_at else [])
+    inputs = available if inputs is None else list(inputs)
+    bad = [c for c in inputs if c not in available]
+    if bad:
+        raise ValueError(f"inputs {bad} not available (available: {available})")
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            cl = control.interconnect(systems + sums, inplist=inputs, inputs=inputs,
-                                      outlist=list(CL_OUTPUTS), outputs=list(CL_OUTPUTS), name=name)
+        cl = control.interconnect(blocks, inplist=inputs, inputs=inputs, outlist=list(outputs),
+                                  outputs=list(outputs), name=name,
+                                  ignore_inputs=[c for c in available if c not in inputs])
     except RuntimeError as exc:
         if "algebraic loop" in str(exc):
             raise ValueError(
@@ -188,7 +213,15 @@ def assemble_closed_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, require
                 "PID, amplifier and self-sensing models close a loop without delay; identify the "
                 "amplifier or the self-sensing model strictly proper (D_required=False)") from None
         raise
-    cl = control.ss(cl.A, cl.B, cl.C, cl.D, dt_common, inputs=inputs, outputs=list(CL_OUTPUTS), name=name)
+    return control.ss(cl.A, cl.B, cl.C, cl.D, dt, inputs=inputs, outputs=list(outputs), name=name)
+
+
+def assemble_closed_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, require_stable: bool = False,
+                         name: str = "amb_lti") -> control.StateSpace:
+    """The nominal closed loop of Fig. 3 (:func:`fig3_loop` with the reference and injection
+    inputs, outputs :data:`~ssamb.channels.CL_OUTPUTS`); warns, or with ``require_stable``
+    raises ``ValueError``, when it is unstable (:func:`stability`)."""
+    cl = fig3_loop(plant, amplifier, selfsensing, pid_x, pid_y, name=name)
     rep = stability(cl)
     if not rep.stable:
         msg = f"closed-loop LTI model is unstable: {rep}"
@@ -196,6 +229,16 @@ def assemble_closed_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, require
             raise ValueError(msg)
         warnings.warn(msg, stacklevel=2)
     return cl
+
+
+def loop_transfer(plant, amplifier, selfsensing, pid_x, pid_y, axis: str) -> control.StateSpace:
+    r"""Loop transfer :math:`L` of one axis broken at its controller input, the other axis
+    closed: :math:`L = y_{fb}/e_{in}`, so that :math:`S = 1/(1 + L)` (ISO 14839-3)."""
+    if axis not in FEEDBACK:
+        raise ValueError(f"axis '{axis}': must be x or y")
+    sys = fig3_loop(plant, amplifier, selfsensing, pid_x, pid_y, inputs=[f"e_{axis}_in"],
+                    outputs=[FEEDBACK[axis]], open_at=axis, name=f"loop_{axis}")
+    return control.ss(sys.A, sys.B, sys.C, sys.D, sys.dt)
 
 
 def _input_matrix(sys: control.StateSpace, n: int, signals: Mapping[str, np.ndarray | float]) -> np.ndarray:
@@ -215,6 +258,13 @@ def equilibrium(sys: control.StateSpace, w0: np.ndarray) -> np.ndarray:
         return np.linalg.solve(np.eye(A.shape[0]) - A, np.asarray(sys.B, float) @ w0)
     except np.linalg.LinAlgError:
         raise ValueError("the system has a pole at z = 1: no unique equilibrium") from None
+
+
+def lti_initial_state(cl: control.StateSpace, r_x0: float = 0.0, r_y0: float = 0.0) -> np.ndarray:
+    """Equilibrium of the closed loop for constant references and no injection (the state a
+    nonlinear run settled at its operating point corresponds to)."""
+    w0 = np.array([{"r_x": r_x0, "r_y": r_y0, ONE: 1.0}.get(n, 0.0) for n in cl.input_labels])
+    return equilibrium(cl, w0)
 
 
 def simulate_closed_loop(sys: control.StateSpace, t, r_x, r_y, inj_x=None, inj_y=None,
@@ -433,3 +483,19 @@ def d2c_pole_sensitivity(sysd: control.StateSpace, method: str = "tustin") -> di
     else:
         raise ValueError(f"method must be 'tustin' or 'zoh' (got {method!r})")
     return {"poles_z": z, "poles_s": s, "gain": g, "fs_hz": 1.0 / T, "gain_over_fs": g * T}
+
+
+def d2c_summary(sysd: control.StateSpace, method: str = "tustin", f_max_hz: float = 1e3) -> dict:
+    """How faithful the continuous equivalent is (:func:`d2c_error` on 300 log-spaced
+    frequencies up to 0.45 fs, same physical frequency) and how much it amplifies pole errors
+    (:func:`d2c_pole_sensitivity`): the largest errors below ``f_max_hz`` and overall."""
+    sysc = to_continuous(sysd, method)
+    freqs = np.logspace(-1, np.log10(0.45 / float(sysd.dt)), 300)
+    err = d2c_error(sysd, sysc, freqs, warp=False)
+    sens = d2c_pole_sensitivity(sysd, method)
+    low = err["freqs_hz"] <= f_max_hz
+    return {"max_mag_error_db_below_1khz": float(np.nanmax(np.abs(err["mag_db"][low]))),
+            "max_phase_error_deg_below_1khz": float(np.nanmax(np.abs(err["phase_deg"][low]))),
+            "max_mag_error_db": err["max_abs_mag_db"], "max_phase_error_deg": err["max_abs_phase_deg"],
+            "f_1db_hz": err["f_1db_hz"], "pole_error_gain_max": float(np.max(np.abs(sens["gain"]))),
+            "pole_error_gain_over_fs_max": float(np.max(np.abs(sens["gain_over_fs"])))}

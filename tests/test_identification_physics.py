@@ -10,25 +10,23 @@ to the reluctance, the current samples carry the PWM ripple -- and an identified
 spreads its error over the band; outside 30-150 Hz the excitation (pulses filtered by the loop)
 is weak.
 """
-import os
 
 import numpy as np
 import pytest
 
+from ssamb.channels import structure
 from ssamb.config import load_config
-from ssamb.identification_stage import subsystem_data
-from ssamb.ident import identify
+from ssamb.identification import identify, subsystem_io
 from ssamb.sim import amb_params, simulate
 
 
 @pytest.fixture(scope="module")
 def plant_and_physics():
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     cfg = load_config()
     par = amb_params(cfg)
     est = simulate(cfg, "id_pulses", duration_s=0.5).data
-    u, y, ins, outs, tdir = subsystem_data(est, "plant", "differential")
-    model = identify(u, y, 9, "N4SID", par.fs_hz, ins, outs, input_directions=tdir)
+    u, y, ins, outs = subsystem_io(est, "plant", "differential")
+    model = identify(u, y, 9, "N4SID", par.fs_hz, ins, outs, input_directions=structure("plant").input_directions)
     u_op = simulate(cfg, duration_s=0.001, arrays={"r_y": np.zeros(83)}, settle_s=0.0).meta["equilibrium"]["u_y"]
     ki, ks = par.ki_ks(u_op)
     return model, par, ki, ks

@@ -1,4 +1,4 @@
-"""``results/summary.json``: the numbers of the paper-versus-reproduction table.
+"""Stage ``summary``: ``results/summary.json``, the numbers of the paper-versus-reproduction table.
 
 Every value is read from a stage output; nothing is typed in. Keys (binding, ARCHITECTURE.md):
 ``fit_pct`` {x, y}; ``orders`` {plant, amplifier, selfsensing}; ``subsystem_fit_pct``;
@@ -50,8 +50,7 @@ def build_summary(assemble_json: str | Path, evidence_jsons: Mapping[str, str | 
                                    "spectral_radius": v["spectral_radius"], "paper_variant": v["paper_variant"],
                                    "mean_fit_pct": v["mean_fit_pct"],
                                    "methods": [{"method": m["method"], "mean_fit": m["mean_fit"],
-                                                "spectral_radius": m["spectral_radius"], "time_s": m["time_s"],
-                                                "error": m["error"]} for m in v["methods"]]}
+                                                "spectral_radius": m["spectral_radius"], "error": m["error"]} for m in v["methods"]]}
                                for k, v in ev.items()},
             "weights": {k: {"max_dev_db": u["max_dev_db"], "order": u["weight"]["order"],
                             "channel": u["channel"], "unit": u["unit"], "bound_holds": u["bound_holds"],
@@ -67,7 +66,7 @@ def build_summary(assemble_json: str | Path, evidence_jsons: Mapping[str, str | 
 
 
 def _sim_brief(meta: Mapping) -> dict:
-    keep = ("experiment", "duration_s", "start", "delevitation_s", "wall_time_s", "config_hash",
+    keep = ("experiment", "duration_s", "start", "delevitation_s", "config_hash",
             "selfsensing_calibration", "equilibrium", "excitation")
     return {k: meta.get(k) for k in keep}
 

@@ -1,8 +1,9 @@
-r"""Generic robustness helpers: μ over frequency, frequency responses, classical margins and
-the ISO 14839-3 sensitivity zones.
+r"""Robustness: μ over frequency, frequency responses, classical margins of conditionally stable
+loops and the ISO 14839-3 sensitivity zones; and their application to the AMB
+(:func:`mu_for_case`, :func:`sensitivity_baseline`).
 
-The AMB-specific generalized plant (figure 6 of the paper) is assembled elsewhere; everything
-here takes either a callable ``f(hz) -> complex matrix`` or an array of frequency responses.
+The generic functions take a callable ``f(hz) -> complex matrix`` or an array of frequency
+responses; the generalized plant (Fig. 6) is :mod:`ssamb.generalized_plant`.
 
 μ-analysis (paper, section 4).  With :math:`N` the closed-loop interconnection (3) and
 :math:`N_{11}` the map from the uncertainty outputs :math:`u_\Delta` to its inputs
@@ -26,11 +27,13 @@ Margins reported by :class:`MuSweep` (``peak`` = :math:`\sup_\omega \bar\mu`, th
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Mapping
+
+import control
 
 import numpy as np
 
-from ssamb.mu import MuResult, mussv
+from .mu import MuResult, mussv
 
 __all__ = [
     "MuSweep",
@@ -40,8 +43,10 @@ __all__ = [
     "iso14839_zone",
     "SensitivityPeak",
     "sensitivity_peak",
-    "ClassicalMargins",
-    "classical_margins",
+    "loop_margins",
+    "log_grid",
+    "mu_for_case",
+    "sensitivity_baseline",
 ]
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
@@ -340,35 +345,82 @@ def sensitivity_peak(sys_or_response, freqs_hz, kind: str = "S", refine: bool = 
 
 
 # ---------------------------------------------------------------------- classical margins
-@dataclass(frozen=True)
-class ClassicalMargins:
-    """Gain/phase margins of a SISO loop transfer L (negative feedback).
+def loop_margins(L: control.LTI, freqs_hz: np.ndarray) -> dict:
+    r"""Classical margins of a SISO loop that may be open-loop unstable (conditionally stable).
 
-    ``gain_margin`` is absolute (``inf`` if the phase never crosses -180°), ``phase_margin_deg``
-    in degrees, crossover frequencies in Hz (NaN if absent), and ``stability_margin`` is
-    :math:`\\min_\\omega |1 + L(j\\omega)| = 1/\\lVert S\\rVert_\\infty`.
+    On a dense grid: every gain crossover (:math:`|L| = 1`) gives a phase margin
+    :math:`180° + \angle L` (wrapped), and every phase crossover (:math:`\angle L = \pm 180°`,
+    i.e. L real negative) gives a gain factor :math:`1/|L|`. For an open-loop unstable plant
+    the loop has an *upper* gain margin (factor > 1 before instability) and a *lower* one
+    (reduction factor < 1): both are reported, with the smallest phase margin. (A margin
+    computed for a stable open loop, such as ``control.stability_margins``, does not apply.)
     """
+    f = np.asarray(freqs_hz, float)
+    w = 2 * np.pi * f
+    arg = np.exp(1j * w * L.dt) if L.dt else 1j * w
+    Lw = np.asarray(L(arg)).reshape(-1)
+    mag = np.abs(Lw)
+    ph = np.degrees(np.angle(Lw))
+    pm, f_pm = [], []
+    for i in np.flatnonzero(np.diff(np.sign(mag - 1.0)) != 0):
+        a = (1.0 - mag[i]) / (mag[i + 1] - mag[i])
+        p = ph[i] + a * (((ph[i + 1] - ph[i]) + 180) % 360 - 180)
+        pm.append(((180.0 + p) + 180) % 360 - 180)
+        f_pm.append(f[i] + a * (f[i + 1] - f[i]))
+    up, low, f_up, f_low = [], [], [], []
+    im = Lw.imag
+    for i in np.flatnonzero(np.diff(np.sign(im)) != 0):
+        a = im[i] / (im[i] - im[i + 1])
+        re = Lw.real[i] + a * (Lw.real[i + 1] - Lw.real[i])
+        if re >= 0:
+            continue
+        k = 1.0 / abs(re)
+        fc = f[i] + a * (f[i + 1] - f[i])
+        (up if k > 1 else low).append(k)
+        (f_up if k > 1 else f_low).append(fc)
+    res = {"phase_margin_deg": None, "phase_margin_hz": None, "gain_margin_upper_db": None,
+           "gain_margin_upper_hz": None, "gain_margin_lower_db": None, "gain_margin_lower_hz": None,
+           "gain_crossovers_hz": [float(x) for x in f_pm]}
+    if pm:
+        j = int(np.argmin(np.abs(pm)))
+        res["phase_margin_deg"], res["phase_margin_hz"] = float(abs(pm[j])), float(f_pm[j])
+    if up:
+        j = int(np.argmin(up))
+        res["gain_margin_upper_db"], res["gain_margin_upper_hz"] = float(20 * np.log10(up[j])), float(f_up[j])
+    if low:
+        j = int(np.argmax(low))
+        res["gain_margin_lower_db"], res["gain_margin_lower_hz"] = float(20 * np.log10(low[j])), float(f_low[j])
+    return res
 
-    gain_margin: float
-    gain_margin_db: float
-    phase_margin_deg: float
-    phase_crossover_hz: float
-    gain_crossover_hz: float
-    stability_margin: float
-    stability_margin_hz: float
 
 
-def classical_margins(L) -> ClassicalMargins:
-    """Classical margins of a SISO ``control`` LTI loop transfer via
-    ``control.stability_margins`` (continuous or discrete)."""
-    import control
+# ---------------------------------------------------------------------- the AMB analyses
+def log_grid(f_min_hz: float, f_max_hz: float, n_points: int) -> np.ndarray:
+    """The analysis frequency grid: ``n_points`` log-spaced frequencies (Hz)."""
+    return np.logspace(np.log10(float(f_min_hz)), np.log10(float(f_max_hz)), int(n_points))
 
-    gm, pm, sm, wpc, wgc, wms = control.stability_margins(L)
-    gm = float(gm)
-    with np.errstate(divide="ignore"):
-        gm_db = float(20 * np.log10(gm)) if gm > 0 else -np.inf
-    return ClassicalMargins(
-        gain_margin=gm, gain_margin_db=gm_db, phase_margin_deg=float(pm),
-        phase_crossover_hz=float(wpc) / (2 * np.pi), gain_crossover_hz=float(wgc) / (2 * np.pi),
-        stability_margin=float(sm), stability_margin_hz=float(wms) / (2 * np.pi),
-    )
+
+def mu_for_case(loop, weights: Mapping, case: str, freqs_hz, refine: bool = True) -> MuSweep:
+    """μ over frequency of the generalized plant (Fig. 6) for one uncertainty case (Fig. 8):
+    :math:`N_{11}` of :func:`ssamb.generalized_plant.n11_function` with the case's block
+    structure; ``loop`` is :func:`ssamb.generalized_plant.uncertainty_loop`."""
+    from .generalized_plant import case_structure, n11_function
+
+    return mu_frequency_response(n11_function(loop, weights, case), freqs_hz, case_structure(case), refine=refine)
+
+
+def sensitivity_baseline(plant, amplifier, selfsensing, pid, freqs_hz) -> dict:
+    """ISO 14839-3 peak sensitivity and the classical margins of each axis (the baseline the
+    paper argues against). The sensitivity of an axis is measured where its feedback signal
+    enters the controller (x: ``x_meas``, y: ``y_ss``), the other axis closed:
+    :math:`S = 1/(1 + L)` of :func:`ssamb.closed_loop.loop_transfer`."""
+    from .closed_loop import loop_transfer
+
+    out = {}
+    for axis in ("x", "y"):
+        L = loop_transfer(plant, amplifier, selfsensing, pid, pid, axis)
+        sp = sensitivity_peak(L, freqs_hz, kind="L")
+        mg = loop_margins(L, np.logspace(-1, np.log10(0.45 / float(L.dt)), 20000))
+        out[axis] = {"peak_sensitivity": float(sp.peak), "peak_sensitivity_db": float(sp.peak_db),
+                     "peak_hz": float(sp.peak_hz), "iso14839_zone": sp.zone, **mg}
+    return out

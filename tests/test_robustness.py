@@ -1,11 +1,11 @@
-"""Tests of the generic robustness helpers ``ssamb.robust`` (analytic expectations)."""
+"""Tests of the generic robustness helpers ``ssamb.robustness`` (analytic expectations)."""
 import control
 import numpy as np
 import pytest
 
-from ssamb.robust import (
+from ssamb.robustness import (
     ISO14839_LIMITS,
-    classical_margins,
+    loop_margins,
     frequency_response_matrix,
     iso14839_zone,
     mu_frequency_response,
@@ -137,16 +137,27 @@ def test_sensitivity_peak_of_second_order_loop():
     assert pk.peak == pytest.approx(mag[k], rel=1e-8)
 
 
-def test_classical_margins_third_order_loop():
-    """L = 2/(s+1)^3: phase crossover at w = sqrt(3) with |L| = 1/4 (GM = 4); gain
-    crossover at w = sqrt(2^(2/3) - 1), PM = 180 - 3 atan(w)."""
-    L = control.tf([2.0], [1, 3, 3, 1])
-    m = classical_margins(L)
-    assert m.gain_margin == pytest.approx(4.0, rel=1e-6)
-    assert m.gain_margin_db == pytest.approx(20 * np.log10(4.0), rel=1e-6)
-    assert m.phase_crossover_hz == pytest.approx(np.sqrt(3) / (2 * np.pi), rel=1e-6)
-    wgc = np.sqrt(2 ** (2 / 3) - 1)
-    assert m.gain_crossover_hz == pytest.approx(wgc / (2 * np.pi), rel=1e-6)
-    assert m.phase_margin_deg == pytest.approx(180 - 3 * np.degrees(np.arctan(wgc)), rel=1e-6)
-    pk = sensitivity_peak(L, np.geomspace(0.01, 10, 200), kind="L")
-    assert m.stability_margin == pytest.approx(1 / pk.peak, rel=1e-4)
+def test_loop_margins_of_a_known_loop():
+    """L = 2/(s+1)^3: gain margin 4 (12.04 dB) at w = sqrt(3); phase margin from |L| = 1."""
+    s = control.tf("s")
+    L = 2 / (s + 1) ** 3
+    m = loop_margins(L, np.logspace(-2, 1, 200000) / (2 * np.pi))
+    assert m["gain_margin_upper_db"] == pytest.approx(20 * np.log10(4), abs=1e-3)
+    assert m["gain_margin_upper_hz"] == pytest.approx(np.sqrt(3) / (2 * np.pi), rel=1e-4)
+    wc = np.sqrt(2 ** (2 / 3) - 1)
+    assert m["phase_margin_deg"] == pytest.approx(180 - 3 * np.degrees(np.arctan(wc)), abs=1e-3)
+    assert m["gain_margin_lower_db"] is None
+
+
+def test_loop_margins_of_an_unstable_open_loop():
+    """PID on an unstable plant, L = (2 s^2 + 4 s + 1)/(s (s^2 - 1)).
+
+    Closed loop for a gain k: s^3 + 2k s^2 + (4k - 1) s + k; Routh: stable iff k > 3/8. So the
+    loop tolerates a gain reduction to 3/8 (-8.52 dB) and any increase (no upper margin).
+    """
+    s = control.tf("s")
+    L = (2 * s**2 + 4 * s + 1) / (s * (s**2 - 1))
+    m = loop_margins(L, np.logspace(-3, 3, 400000) / (2 * np.pi))
+    assert m["gain_margin_lower_db"] == pytest.approx(20 * np.log10(3 / 8), abs=1e-3)
+    assert m["gain_margin_upper_db"] is None
+    assert m["phase_margin_deg"] > 0

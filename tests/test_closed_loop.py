@@ -7,8 +7,8 @@ import control
 import numpy as np
 import pytest
 
-from ssamb.ident import IdentifiedModel
-from ssamb.loop import (
+from ssamb.identification import IdentifiedModel
+from ssamb.closed_loop import (
     CL_OUTPUTS,
     assemble_closed_loop,
     d2c_error,
@@ -287,8 +287,8 @@ def test_to_continuous_keeps_closed_loop_stability():
 
 
 def test_replay_uses_the_data_columns():
-    from ssamb.ident import nrmse_fit
-    from ssamb.loop import replay
+    from ssamb.identification import nrmse_fit
+    from ssamb.closed_loop import replay
 
     plant, amp, ss = _affine_models()
     pid = _pi(2000.0, 20.0)
@@ -352,10 +352,14 @@ def _pulse_train(n, amp, seed):
     return out
 
 
+#: the paper's structures (4-input amplifier, current-input self-sensing): the known loop has them
+PAPER = {"plant": "none", "amplifier": "full", "selfsensing": "current"}
+
+
 def test_identify_and_assemble_a_known_linear_loop():
     from ssamb.config import load_config
-    from ssamb.ident import identify, nrmse_fit, subsystem_io
-    from ssamb.loop import replay
+    from ssamb.identification import identify, nrmse_fit, subsystem_io
+    from ssamb.closed_loop import replay
     from ssamb.sim.controller import pid_discrete
 
     pid = pid_discrete(load_config())
@@ -369,7 +373,7 @@ def test_identify_and_assemble_a_known_linear_loop():
     est, val = experiment(0.1, 0.3, 1), experiment(0.05, 0.2, 3)
     models = {}
     for sub, order in (("plant", 5), ("amplifier", 4), ("selfsensing", 1)):
-        u, y, ins, outs = subsystem_io(est, sub)
+        u, y, ins, outs = subsystem_io(est, sub, PAPER[sub])
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             models[sub] = identify(u, y, order, "N4SID", FS, ins, outs, ss_f=15, ss_p=15)

@@ -1,0 +1,110 @@
+r"""Stage ``identify``: one subsystem model from closed-loop simulator data (paper section 3).
+
+Reads the estimation and validation experiments, compares SIPPY methods at the configured
+order, scans the order for evidence, identifies the paper's structural variant where ours
+differs, and writes the selected model, a JSON of evidence and figures. The structures are
+those of :mod:`ssamb.channels` (config ``identification.<subsystem>``); why ours differ from the
+paper's is in :func:`ssamb.identification.selection.select_model` and the README.
+
+A paper-variant fit that fails is written as a *failed-fit* file
+(:func:`ssamb.model_io.save_failed`): reading it raises with the reason, and the evidence JSON
+says ``failed`` -- it is never replaced by the selected model.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from ..channels import VARIANTS
+from ..identification import identify, order_scan, subsystem_io
+from ..identification.selection import compare_and_select, model_summary
+from ..io import DataError, load_npz, write_json
+from ..model_io import save_failed, save_model
+
+__all__ = ["run_identify"]
+
+
+def _load_io(path, subsystem: str, variant: str):
+    arrays, _ = load_npz(path)
+    try:
+        return subsystem_io(arrays, subsystem, variant), float(arrays["fs_hz"])
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from None
+
+
+def _cut(io, duration_s: float, fs_hz: float):
+    n = min(len(io.u), int(round(duration_s * fs_hz)))
+    return io.u[:n], io.y[:n]
+
+
+def _paper_variant(est_npz, val_npz, subsystem: str, variant: str, order: int, method: str,
+                   kw: Mapping, out_variant) -> dict:
+    """Identify the paper's structure with the selected method; write it, or a failed-fit file."""
+    from ..channels import structure
+
+    try:
+        (est, fs), (val, _) = _load_io(est_npz, subsystem, variant), _load_io(val_npz, subsystem, variant)
+        m2 = identify(est.u, est.y, order, method, fs, est.input_names, est.output_names,
+                      input_directions=structure(subsystem, variant).input_directions, **kw)
+        fit2 = np.asarray(m2.fit(val.u, val.y))
+        if not np.all(np.isfinite(fit2)):
+            raise ValueError(f"validation fit not finite: {fit2.tolist()}")
+    except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+        reason = f"{type(exc).__name__}: {exc}"
+        if out_variant is not None:
+            save_failed(out_variant, reason, {"subsystem": subsystem, "variant": variant})
+        return {"variant": variant, "failed": True, "error": reason}
+    if out_variant is not None:
+        save_model(out_variant, m2)
+    return {"variant": variant, "failed": False, "inputs": list(est.input_names),
+            "outputs": list(est.output_names), "method": method, "fit_pct": fit2.tolist(),
+            "spectral_radius": m2.spectral_radius, "stable": bool(m2.is_stable)}
+
+
+def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsystem: str,
+                 params: Mapping, out_model: str | Path, out_json: str | Path,
+                 out_variant: str | Path | None = None, fig_dir: str | Path | None = None) -> dict:
+    """Identify one subsystem; write the selected model, its evidence and figures.
+
+    Parameters
+    ----------
+    estimation_npz, validation_npz : path
+        Simulator outputs (``results/sim/id_pulses.npz``, ``results/sim/id_validation.npz``).
+    subsystem : {'plant', 'amplifier', 'selfsensing'}
+    params : mapping
+        The config section ``identification`` (``ss_f``, ``ss_p``, ``methods``, ``order_scan``
+        and the subsystem's own ``order`` and structure key).
+    out_model, out_json : path
+        The selected model (NPZ + JSON sidecar) and the evidence JSON.
+    out_variant : path, optional
+        The paper's structural variant of the model (or a failed-fit file).
+    fig_dir : path, optional
+        Where to write ``<subsystem>_orders.png`` and ``<subsystem>_validation.png``.
+    """
+    key, ours, paper = VARIANTS[subsystem]
+    sub = dict(params[subsystem])
+    variant = sub.get(key, ours)
+    order = int(sub["order"])
+    kw = {"ss_f": int(params["ss_f"]), "ss_p": int(params["ss_p"])}
+    (est, fs), (val, _) = _load_io(estimation_npz, subsystem, variant), _load_io(validation_npz, subsystem, variant)
+    sel = compare_and_select(est, val, subsystem, variant, order, tuple(params["methods"]), fs, **kw)
+    scan_s = float(params["order_scan"]["duration_s"])
+    (us, ys), (uvs, yvs) = _cut(est, scan_s, fs), _cut(val, scan_s, fs)
+    scan = order_scan(us, ys, orders=[int(o) for o in params["order_scan"]["orders"]], method=sel.method,
+                      fs_hz=fs, input_names=est.input_names, output_names=est.output_names, u_val=uvs,
+                      y_val=yvs, input_directions=sel.input_directions, **kw)
+    other = paper if variant != paper else ours
+    variant_info = _paper_variant(estimation_npz, validation_npz, subsystem, other, order, sel.method, kw,
+                                  out_variant)
+    save_model(out_model, sel.model)
+    info = {"subsystem": subsystem, "variant": {key: variant}, "paper_variant": variant_info,
+            **model_summary(sel, val, fs), "order_scan": scan.as_dict(),
+            "estimation_samples": int(len(est.u)), "validation_samples": int(len(val.u))}
+    write_json(out_json, info)
+    if fig_dir is not None:
+        from ..figures import identification_figures
+
+        identification_figures(info, sel.model, val.u, val.y, fs, Path(fig_dir))
+    return info
