@@ -5,7 +5,6 @@ objects the stages work with.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Mapping
 
@@ -38,7 +37,7 @@ def save_model(path: str | Path, model: IdentifiedModel) -> None:
         "ss_f": model.ss_f,
         "ss_p": model.ss_p,
         "spectral_radius": model.spectral_radius,
-        "info": json.loads(json.dumps(model.info, default=lambda o: np.asarray(o).tolist())),
+        "info": model.info,
     }
     save_npz(path, arrays, meta)
 

@@ -272,6 +272,27 @@ def _samples_per_period(fs_hz: float, f_resolution_hz: float) -> int:
     return n
 
 
+def _multisine_bins(fs_hz: float, f_min_hz, f_max_hz, f_resolution_hz) -> tuple[int, np.ndarray]:
+    """Samples per period and the DFT bins of the lines in ``[f_min_hz, f_max_hz]`` (DC and
+    Nyquist excluded); the arguments are checked (the message names the argument)."""
+    f_min_hz = _real("f_min_hz", f_min_hz, nonneg=True)
+    f_max_hz = _real("f_max_hz", f_max_hz, positive=True)
+    f_resolution_hz = _real("f_resolution_hz", f_resolution_hz, positive=True)
+    if f_max_hz < f_min_hz:
+        raise ValueError(f"f_max_hz={f_max_hz!r} must be >= f_min_hz={f_min_hz!r}")
+    if f_max_hz >= fs_hz / 2.0:
+        raise ValueError(f"f_max_hz={f_max_hz!r} must be below the Nyquist frequency fs_hz/2={fs_hz / 2!r}")
+    n_per = _samples_per_period(fs_hz, f_resolution_hz)
+    k_lo = max(1, math.ceil(f_min_hz / f_resolution_hz - 1e-9))
+    k_hi = min(math.floor(f_max_hz / f_resolution_hz + 1e-9), (n_per - 1) // 2)  # strictly below Nyquist
+    if k_hi < k_lo:
+        raise ValueError(
+            f"no multiple of f_resolution_hz={f_resolution_hz!r} lies in "
+            f"[f_min_hz={f_min_hz!r}, f_max_hz={f_max_hz!r}] (DC excluded)"
+        )
+    return n_per, np.arange(k_lo, k_hi + 1, dtype=np.int64)
+
+
 def multisine(
     fs_hz: float,
     amplitude: float,
@@ -283,6 +304,7 @@ def multisine(
     *,
     phase: str = "random",
     start_near_zero: bool = True,
+    amplitude_definition: str = "peak",
 ) -> Multisine:
     r"""Periodic multisine with equal-amplitude lines on every multiple of ``f_resolution_hz``.
 
@@ -295,14 +317,13 @@ def multisine(
     "random"``, the paper's "random-phase multi-sine", section 5) or Schroeder's
     :math:`\varphi_k = -\pi i (i-1) / |K|` (``phase="schroeder"``, low crest factor), and
     :math:`c` chosen so that :math:`\max_n |x[n]|` over a period equals ``amplitude`` exactly
-    (the paper's "amplitude of 100 um"). The period is built with an inverse real FFT, so the
+    (``amplitude_definition="peak"``: our reading of the paper's "amplitude of 100 um") or
+    :math:`c` = ``amplitude`` (``"per_line"``: every line has that amplitude). The period is built with an inverse real FFT, so the
     DFT of any whole period is zero outside the excited bins (no leakage) and the record is
     exactly periodic: ``x[n + N] == x[n]``.
 
-    With ``start_near_zero`` the period is rotated circularly so that it starts at the sample
-    of smallest magnitude (the reference then starts without a jump, which spares the
-    levitated rotor a step at t = 0). A circular shift keeps the lines and their amplitudes;
-    it only adds a linear phase, which ``phases_rad`` includes.
+    With ``start_near_zero`` the period is rotated to start at its smallest sample (no jump of
+    the reference at t = 0); the shift only adds a linear phase, included in ``phases_rad``.
 
     Parameters
     ----------
@@ -322,6 +343,8 @@ def multisine(
         Phase law.
     start_near_zero : bool
         Rotate the period to start at its smallest-magnitude sample.
+    amplitude_definition : {"peak", "per_line"}
+        What ``amplitude`` is: the peak of the signal, or the amplitude of each line.
 
     Returns
     -------
@@ -335,30 +358,15 @@ def multisine(
     """
     fs_hz = _real("fs_hz", fs_hz, positive=True)
     amplitude = _real("amplitude", amplitude, nonneg=True)
-    f_min_hz = _real("f_min_hz", f_min_hz, nonneg=True)
-    f_max_hz = _real("f_max_hz", f_max_hz, positive=True)
-    f_resolution_hz = _real("f_resolution_hz", f_resolution_hz, positive=True)
     periods = _int("periods", periods, minimum=1)
-    if f_max_hz < f_min_hz:
-        raise ValueError(f"f_max_hz={f_max_hz!r} must be >= f_min_hz={f_min_hz!r}")
-    if f_max_hz >= fs_hz / 2.0:
-        raise ValueError(f"f_max_hz={f_max_hz!r} must be below the Nyquist frequency fs_hz/2={fs_hz / 2!r}")
     if phase not in ("random", "schroeder"):
         raise ValueError(f"phase must be 'random' or 'schroeder', got {phase!r}")
-    n_per = _samples_per_period(fs_hz, f_resolution_hz)
-    k_lo = max(1, math.ceil(f_min_hz / f_resolution_hz - 1e-9))
-    k_hi = math.floor(f_max_hz / f_resolution_hz + 1e-9)
-    k_hi = min(k_hi, (n_per - 1) // 2)  # strictly below Nyquist
-    if k_hi < k_lo:
-        raise ValueError(
-            f"no multiple of f_resolution_hz={f_resolution_hz!r} lies in "
-            f"[f_min_hz={f_min_hz!r}, f_max_hz={f_max_hz!r}] (DC excluded)"
-        )
-    bins = np.arange(k_lo, k_hi + 1, dtype=np.int64)
+    if amplitude_definition not in ("peak", "per_line"):
+        raise ValueError(f"amplitude_definition must be 'peak' or 'per_line', got {amplitude_definition!r}")
+    n_per, bins = _multisine_bins(fs_hz, f_min_hz, f_max_hz, f_resolution_hz)
     n_lines = bins.size
     if phase == "random":
-        rng = np.random.default_rng(_seed(seed))
-        phases = rng.uniform(0.0, 2.0 * np.pi, size=n_lines)
+        phases = np.random.default_rng(_seed(seed)).uniform(0.0, 2.0 * np.pi, size=n_lines)
     else:
         i = np.arange(1, n_lines + 1, dtype=np.float64)
         phases = np.mod(-np.pi * i * (i - 1) / n_lines, 2.0 * np.pi)
@@ -370,7 +378,7 @@ def multisine(
         one = np.roll(one, -n0)
         phases = np.mod(phases + 2.0 * np.pi * bins * n0 / n_per, 2.0 * np.pi)
     peak = float(np.max(np.abs(one)))
-    scale = amplitude / peak if peak > 0 else 0.0
+    scale = amplitude if amplitude_definition == "per_line" else (amplitude / peak if peak > 0 else 0.0)
     one = one * scale
     x = np.tile(one, periods)
     t = np.arange(x.size, dtype=np.float64) / fs_hz
@@ -562,7 +570,7 @@ _REQUIRED = {
 _OPTIONAL = {
     "none": (),
     "pulses": (),
-    "multisine": ("f_resolution_hz", "phase"),
+    "multisine": ("f_resolution_hz", "phase", "amplitude_definition"),
     "sweep": ("law",),
     "step": (),
 }
@@ -614,6 +622,28 @@ def make_excitation(
     ValueError
         Unknown ``kind``, a missing or unknown key (named in the message), or a bad value.
     """
+    kind = _check_spec(spec)
+    fs_hz = _real("fs_hz", fs_hz, positive=True)
+    amplitude, unit = _amplitude(spec, kind)
+    used_seed = _used_seed(spec, seed, kind)
+    if duration_s is not None:
+        duration_s = _real("duration_s", duration_s, positive=True)
+    elif kind in ("none", "pulses", "step"):
+        raise ValueError(f"duration_s: required for kind '{kind}'")
+    params: dict[str, Any] = {"kind": kind, "fs_hz": fs_hz}
+    t, x, ms = _BUILDERS[kind](spec, fs_hz, duration_s, amplitude, used_seed, params)
+    params["duration_s"] = x.size / fs_hz
+    if kind != "none":
+        params["amplitude"] = amplitude
+        params["unit"] = unit
+    if used_seed is not None:
+        params["seed"] = used_seed
+    return Excitation(t=t, x=x, kind=kind, amplitude=amplitude, unit=unit, seed=used_seed,
+                      params=params, multisine=ms)
+
+
+def _check_spec(spec) -> str:
+    """The spec's kind, after checking that every key is known for it."""
     if not isinstance(spec, Mapping):
         raise ValueError(f"excitation spec must be a mapping, got {type(spec).__name__}")
     if "kind" not in spec:
@@ -623,100 +653,90 @@ def make_excitation(
         raise ValueError(
             f"excitation key 'kind': unknown kind {kind!r} (one of none, pulses, multisine, sweep, step)"
         )
-    fs_hz = _real("fs_hz", fs_hz, positive=True)
     allowed = set(_PASSTHROUGH) | set(_REQUIRED[kind]) | set(_OPTIONAL[kind]) | {"amplitude_m", "amplitude_a"}
     unknown = sorted(str(k) for k in spec if k not in allowed)
     if unknown:
         raise ValueError(
             f"excitation key '{unknown[0]}': unknown for kind '{kind}' (allowed: {sorted(allowed)})"
         )
+    return kind
 
-    # amplitude and its unit
+
+def _amplitude(spec, kind: str) -> tuple[float, str]:
+    """``(amplitude, unit)``: ``amplitude_m`` (m) or ``amplitude_a`` (A), exactly one."""
     if kind == "none":
-        amplitude, unit = 0.0, ""
-    else:
-        has_m = spec.get("amplitude_m") is not None
-        has_a = spec.get("amplitude_a") is not None
-        if has_m and has_a:
-            raise ValueError("excitation keys 'amplitude_m' and 'amplitude_a': give only one of them")
-        if not (has_m or has_a):
-            raise ValueError(f"excitation key 'amplitude_m' (or 'amplitude_a'): missing (required for kind '{kind}')")
-        key = "amplitude_m" if has_m else "amplitude_a"
-        amplitude = _real(f"excitation key '{key}'", spec[key], nonneg=True)
-        unit = "m" if has_m else "A"
+        return 0.0, ""
+    has_m = spec.get("amplitude_m") is not None
+    has_a = spec.get("amplitude_a") is not None
+    if has_m and has_a:
+        raise ValueError("excitation keys 'amplitude_m' and 'amplitude_a': give only one of them")
+    if not (has_m or has_a):
+        raise ValueError(f"excitation key 'amplitude_m' (or 'amplitude_a'): missing (required for kind '{kind}')")
+    key = "amplitude_m" if has_m else "amplitude_a"
+    return _real(f"excitation key '{key}'", spec[key], nonneg=True), ("m" if has_m else "A")
 
-    # seed
+
+def _used_seed(spec, seed, kind: str) -> int | None:
+    """``spec['seed']`` (else ``seed``) plus ``spec['seed_offset']`` for the random kinds."""
+    if not (kind == "pulses" or (kind == "multisine" and spec.get("phase", "random") == "random")):
+        return None
     base = spec.get("seed", seed)
-    offset = spec.get("seed_offset", 0)
-    used_seed: int | None = None
-    if kind in ("pulses",) or (kind == "multisine" and spec.get("phase", "random") == "random"):
-        if base is None:
-            raise ValueError(
-                f"excitation key 'seed': missing (kind '{kind}' is random: pass seed= or put seed in the spec)"
-            )
-        used_seed = _int("seed", base, minimum=0) + _int("excitation key 'seed_offset'", offset, minimum=0)
+    if base is None:
+        raise ValueError(f"excitation key 'seed': missing (kind '{kind}' is random: pass seed= or put seed in the spec)")
+    return _int("seed", base, minimum=0) + _int("excitation key 'seed_offset'", spec.get("seed_offset", 0), minimum=0)
 
+
+def _build_none(spec, fs_hz, duration_s, amplitude, seed, params):
+    t = time_vector(fs_hz, duration_s)
+    return t, np.zeros_like(t), None
+
+
+def _build_pulses(spec, fs_hz, duration_s, amplitude, seed, params):
+    mn = _real("excitation key 'min_width_s'", _get(spec, "min_width_s", "pulses"), positive=True)
+    mx = _real("excitation key 'max_width_s'", _get(spec, "max_width_s", "pulses"), positive=True)
+    x = pulses(fs_hz, duration_s, amplitude, mn, mx, seed)
+    params.update(min_width_s=mn, max_width_s=mx)
+    return np.arange(x.size, dtype=np.float64) / fs_hz, x, None
+
+
+def _build_multisine(spec, fs_hz, duration_s, amplitude, seed, params):
+    fmin, fmax = _get(spec, "f_min_hz", "multisine"), _get(spec, "f_max_hz", "multisine")
+    per = _int("excitation key 'periods'", _get(spec, "periods", "multisine"), minimum=1)
+    fres = spec.get("f_resolution_hz", 1.0)
+    phase, adef = spec.get("phase", "random"), spec.get("amplitude_definition", "peak")
+    n_per = _samples_per_period(fs_hz, _real("excitation key 'f_resolution_hz'", fres, positive=True))
+    needed = per if duration_s is None else max(1, math.ceil(n_samples(fs_hz, duration_s) / n_per))
+    ms = multisine(fs_hz, amplitude, fmin, fmax, fres, needed, seed if seed is not None else 0, phase=phase,
+                   amplitude_definition=adef)
     if duration_s is not None:
-        duration_s = _real("duration_s", duration_s, positive=True)
-    params: dict[str, Any] = {"kind": kind, "fs_hz": fs_hz}
-    ms = None
-    if kind == "none":
-        if duration_s is None:
-            raise ValueError("duration_s: required for kind 'none'")
-        t = time_vector(fs_hz, duration_s)
-        x = np.zeros_like(t)
-    elif kind == "pulses":
-        if duration_s is None:
-            raise ValueError("duration_s: required for kind 'pulses'")
-        mn = _real("excitation key 'min_width_s'", _get(spec, "min_width_s", kind), positive=True)
-        mx = _real("excitation key 'max_width_s'", _get(spec, "max_width_s", kind), positive=True)
-        x = pulses(fs_hz, duration_s, amplitude, mn, mx, used_seed)
-        t = np.arange(x.size, dtype=np.float64) / fs_hz
-        params.update(min_width_s=mn, max_width_s=mx)
-    elif kind == "multisine":
-        fmin = _get(spec, "f_min_hz", kind)
-        fmax = _get(spec, "f_max_hz", kind)
-        per = _int("excitation key 'periods'", _get(spec, "periods", kind), minimum=1)
-        fres = spec.get("f_resolution_hz", 1.0)
-        phase = spec.get("phase", "random")
-        n_per = _samples_per_period(fs_hz, _real("excitation key 'f_resolution_hz'", fres, positive=True))
-        if duration_s is None:
-            periods_needed = per
-        else:
-            periods_needed = max(1, math.ceil(n_samples(fs_hz, duration_s) / n_per))
-        ms = multisine(fs_hz, amplitude, fmin, fmax, fres, periods_needed, used_seed if used_seed is not None else 0, phase=phase)
-        if duration_s is not None:
-            n = n_samples(fs_hz, duration_s)
-            ms = Multisine(
-                t=ms.t[:n], x=ms.x[:n], lines_hz=ms.lines_hz, samples_per_period=ms.samples_per_period,
-                lines_bins=ms.lines_bins, phases_rad=ms.phases_rad, line_amplitude=ms.line_amplitude,
-                fs_hz=ms.fs_hz, periods=n / ms.samples_per_period,
-            )
-        t, x = ms.t, ms.x
-        params.update(f_min_hz=float(fmin), f_max_hz=float(fmax), f_resolution_hz=float(fres),
-                      periods=ms.periods, phase=phase, samples_per_period=ms.samples_per_period)
-    elif kind == "sweep":
-        f0 = _get(spec, "f_start_hz", kind)
-        f1 = _get(spec, "f_stop_hz", kind)
-        T = _get(spec, "sweep_duration_s", kind)
-        law = spec.get("law", "linear")
-        if duration_s is None:
-            duration_s = _real("excitation key 'sweep_duration_s'", T, positive=True)
-        x = sweep(fs_hz, duration_s, amplitude, f0, f1, T, law)
-        t = np.arange(x.size, dtype=np.float64) / fs_hz
-        params.update(f_start_hz=float(f0), f_stop_hz=float(f1), sweep_duration_s=float(T), law=law)
-    else:  # step
-        if duration_s is None:
-            raise ValueError("duration_s: required for kind 'step'")
-        ts = _get(spec, "t_step_s", kind)
-        x = step(fs_hz, duration_s, amplitude, ts)
-        t = np.arange(x.size, dtype=np.float64) / fs_hz
-        params.update(t_step_s=float(ts))
-    params["duration_s"] = x.size / fs_hz
-    if kind != "none":
-        params["amplitude"] = amplitude
-        params["unit"] = unit
-    if used_seed is not None:
-        params["seed"] = used_seed
-    return Excitation(t=t, x=x, kind=kind, amplitude=amplitude, unit=unit, seed=used_seed,
-                      params=params, multisine=ms)
+        n = n_samples(fs_hz, duration_s)
+        ms = Multisine(t=ms.t[:n], x=ms.x[:n], lines_hz=ms.lines_hz, samples_per_period=ms.samples_per_period,
+                       lines_bins=ms.lines_bins, phases_rad=ms.phases_rad, line_amplitude=ms.line_amplitude,
+                       fs_hz=ms.fs_hz, periods=n / ms.samples_per_period)
+    params.update(f_min_hz=float(fmin), f_max_hz=float(fmax), f_resolution_hz=float(fres), periods=ms.periods,
+                  phase=phase, samples_per_period=ms.samples_per_period)
+    if adef != "peak":
+        params["amplitude_definition"] = adef
+    return ms.t, ms.x, ms
+
+
+def _build_sweep(spec, fs_hz, duration_s, amplitude, seed, params):
+    f0, f1 = _get(spec, "f_start_hz", "sweep"), _get(spec, "f_stop_hz", "sweep")
+    T = _get(spec, "sweep_duration_s", "sweep")
+    law = spec.get("law", "linear")
+    if duration_s is None:
+        duration_s = _real("excitation key 'sweep_duration_s'", T, positive=True)
+    x = sweep(fs_hz, duration_s, amplitude, f0, f1, T, law)
+    params.update(f_start_hz=float(f0), f_stop_hz=float(f1), sweep_duration_s=float(T), law=law)
+    return np.arange(x.size, dtype=np.float64) / fs_hz, x, None
+
+
+def _build_step(spec, fs_hz, duration_s, amplitude, seed, params):
+    ts = _get(spec, "t_step_s", "step")
+    x = step(fs_hz, duration_s, amplitude, ts)
+    params.update(t_step_s=float(ts))
+    return np.arange(x.size, dtype=np.float64) / fs_hz, x, None
+
+
+_BUILDERS = {"none": _build_none, "pulses": _build_pulses, "multisine": _build_multisine,
+             "sweep": _build_sweep, "step": _build_step}

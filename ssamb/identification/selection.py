@@ -87,11 +87,6 @@ class OrderScan:
     output_names: tuple
     errors: dict
 
-    @property
-    def best_order(self) -> int:
-        """Order of the highest mean validation fit."""
-        return int(self.orders[int(np.nanargmax(self.mean_fit))])
-
     def smallest_order_within(self, tol_pct: float = 1.0) -> int:
         """Smallest order whose mean fit is within ``tol_pct`` of the best (parsimony)."""
         best = np.nanmax(self.mean_fit)

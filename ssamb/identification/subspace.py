@@ -147,25 +147,11 @@ def _refine(A, C, K, w, y, D_cols, mode):
     return B, D, x0
 
 
-def identify(
-    u,
-    y,
-    order: int,
-    method: str = "N4SID",
-    fs_hz: float = FS_HZ_DEFAULT,
-    input_names: Sequence[str] | None = None,
-    output_names: Sequence[str] | None = None,
-    *,
-    ss_f: int = 30,
-    ss_p: int = 30,
-    D_required: bool = False,
-    A_stability: bool = False,
-    PK_B_reval: bool = False,
-    affine: bool = True,
-    refine: str = "auto",
-    input_directions=None,
-    input_rank_tol: float = 1e-6,
-) -> IdentifiedModel:
+def identify(u, y, order: int, method: str = "N4SID", fs_hz: float = FS_HZ_DEFAULT,
+             input_names: Sequence[str] | None = None, output_names: Sequence[str] | None = None, *,
+             ss_f: int = 30, ss_p: int = 30, D_required: bool = False, A_stability: bool = False,
+             PK_B_reval: bool = False, affine: bool = True, refine: str = "auto", input_directions=None,
+             input_rank_tol: float = 1e-6) -> IdentifiedModel:
     r"""Identify a discrete-time state-space model with a SIPPY subspace method.
 
     Parameters
@@ -185,10 +171,8 @@ def identify(
         Channel names (default ``u0.., y0..``).
     ss_f, ss_p : int
         Future and past horizons (``SS_f``, ``SS_p``; the SIM methods use ``p = f``; order
-        < ``ss_f``). With the default 30 a 4x4 identification on 41 650 samples takes 10-35 s
-        and < 1.2 GB (``bench/ident_speed.py``); the cost of SIPPY's SVDs grows as
-        :math:`N ((m+l) f)^2`. Under CPU contention set ``OPENBLAS_NUM_THREADS=1`` (measured
-        2-3x faster than 2 threads on a loaded 2-core machine).
+        < ``ss_f``). The cost of SIPPY's SVDs grows as :math:`N ((m+l) f)^2`
+        (``bench/ident_speed.py``).
     D_required : bool
         Estimate a feedthrough D (``SS_D_required``); default strictly proper (one sample of
         delay, which also avoids algebraic loops in the closed-loop assembly).

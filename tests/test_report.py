@@ -1,0 +1,118 @@
+"""The report sections on a fixture results folder: every section builds from summary.json, the
+stage files and the config; images are the files the stages write; experiment figures in the
+text come from the config; the notebook holds only calls."""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from ssamb.io import save_npz
+from ssamb.report import sections
+from ssamb.report.build import make_notebook
+from ssamb.report.context import load_context
+from ssamb.report.elements import Image, Section, Table
+
+ROOT = Path(__file__).resolve().parent.parent
+FIX = ROOT / "tests" / "data" / "report_fixture"
+#: PNG files the stages write (the report may show only these)
+STAGE_PNGS = (["model/fig4.png", "validation/fig9.png"]
+              + [f"ident/{s}_{k}.png" for s in ("plant", "amplifier", "selfsensing") for k in ("orders", "validation")]
+              + [f"uncertainty/{s}_fig7.png" for s in ("plant", "amplifier", "selfsensing")]
+              + [f"mu/{c}_fig8.png" for c in ("selfsensing", "amplifier", "plant", "all")]
+              + [f"closeloop/{f}.png" for f in ("residual_time", "residual_spectra", "evidence", "whiteness")])
+
+
+def _sim_npz(path: Path, n: int = 400) -> None:
+    t = np.arange(n) / 83300.0
+    y = 1e-6 * np.sin(2 * np.pi * 20 * t)
+    arrays = {"t": t, "fs_hz": 83300.0, "y_true": y, "x_true": 0 * t, "y_meas": y, "y_ss": 1.01 * y,
+              "i_ypos": 3.5 + 0 * t, "i_yneg": 2.5 + 0 * t}
+    save_npz(path, arrays, {"selfsensing_calibration": {"gain": 1.02, "offset_m": 1e-7},
+                            "equilibrium": {"u_y": 0.61}})
+
+
+def _results(tmp_path: Path, config: dict) -> Path:
+    res = tmp_path / "results"
+    (res / "sim").mkdir(parents=True)
+    shutil.copy(FIX / "summary.json", res / "summary.json")
+    for name in ("levitate", config["uncertainty"]["experiment"]):
+        _sim_npz(res / "sim" / f"{name}.npz")
+    for p in STAGE_PNGS:
+        (res / p).parent.mkdir(parents=True, exist_ok=True)
+        (res / p).write_bytes(b"\x89PNG\r\n\x1a\n")
+    shutil.copy(FIX / "closeloop.json", res / "closeloop" / "closeloop.json")
+    return res
+
+
+@pytest.fixture()
+def ctx(tmp_path):
+    cfg_path = tmp_path / "config.yaml"
+    shutil.copy(ROOT / "config.yaml", cfg_path)
+    cfg = yaml.safe_load(cfg_path.read_text())
+    return load_context(_results(tmp_path, cfg), cfg_path, tmp_path / "results" / "closeloop")
+
+
+def test_every_section_builds_with_consistent_tables_and_stage_images(ctx):
+    allowed = {(ctx.results / p).resolve() for p in STAGE_PNGS}
+    for name in sections.ORDER:
+        sec = getattr(sections, name)(ctx)
+        assert isinstance(sec, Section) and sec.title, name
+        for item in sec.items:
+            if isinstance(item, Table):
+                assert all(len(r) == len(item.header) for r in item.rows), (name, item.header)
+            if isinstance(item, Image):
+                assert Path(item.path).resolve() in allowed, (name, item.path)
+
+
+def test_comparison_quotes_the_paper_and_reads_ours(ctx):
+    tab = sections.comparison(ctx).tables()[0]
+    fit_y = next(r for r in tab.rows if r[0].startswith("closed-loop LTI fit, y"))
+    assert fit_y[1] == "50.76 %"
+    assert fit_y[2] == f"{ctx.summary['fit_pct']['y']:.4g} %"
+
+
+def test_experiment_figures_in_the_text_come_from_the_config(tmp_path):
+    """Change every experiment figure the report text mentions; the text follows, the old
+    figures are gone (none is typed in)."""
+    cfg_path = tmp_path / "config.yaml"
+    cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
+    ms = cfg["experiments"][cfg["uncertainty"]["experiment"]]["excitation"]
+    ms.update(amplitude_m=1.23e-4, f_min_hz=7.0, f_max_hz=31.0)
+    cfg["uncertainty"]["tol_db"] = 2.5
+    cfg["controller"]["fs_hz"] = 83200.0
+    cfg["table1"]["f_pwm_hz"] = 31000.0
+    pul = cfg["experiments"][cfg["identification"]["estimation"]]["excitation"]
+    pul["amplitude_a"] = 0.37
+    cfg_path.write_text(yaml.safe_dump(cfg))
+    c = load_context(_results(tmp_path, cfg), cfg_path)
+    text = "\n".join(getattr(sections, n)(c).text() for n in ("overview", "simulation", "identification",
+                                                              "uncertainty"))
+    for new in ("123 µm", "7–31 Hz", "2.5 dB", "83.2 kHz", "31 kHz", "0.37 A"):
+        assert new in text, new
+    for old in ("100 µm", "5–26 Hz", "3 dB", "83.3 kHz", "30 kHz", "0.3 A"):
+        assert old not in text, old
+
+
+def test_notebook_cells_only_call_sections(ctx):
+    nb = make_notebook(ctx.results, ctx.config_path, ctx.closeloop_dir)
+    for cell in nb.cells[1:]:
+        assert cell.cell_type == "code"
+        assert re.fullmatch(r"sec = sections\.\w+\(ctx\)\nif sec is not None:\n    show\(sec\)", cell.source)
+    assert len(nb.cells) == 1 + len(sections.ORDER)
+
+
+def test_failed_paper_variant_is_reported_as_failed(ctx):
+    s = json.loads((ctx.results / "summary.json").read_text())
+    s["details"]["identification"]["amplifier"]["paper_variant"] = {"variant": "full", "failed": True,
+                                                                    "error": "LinAlgError: singular"}
+    (ctx.results / "summary.json").write_text(json.dumps(s))
+    c = load_context(ctx.results, ctx.config_path)
+    tab = sections.identification(c).tables()[1]
+    row = next(r for r in tab.rows if r[0] == "amplifier")
+    assert row[-1].startswith("failed: LinAlgError")
