@@ -129,7 +129,7 @@ def _physical_errors(cfg: Mapping) -> list[str]:
             if idc[sub]["order"] >= idc["ss_f"]:
                 msgs.append(f"config key 'identification.{sub}.order': {idc[sub]['order']} must be below "
                             f"identification.ss_f = {idc['ss_f']} (SIPPY's future horizon)")
-        if max(idc["order_scan"]["orders"]) >= idc["ss_f"]:
+        if max(idc["order_scan"]["orders"], default=0) >= idc["ss_f"]:
             msgs.append("config key 'identification.order_scan.orders': every order must be below identification.ss_f")
     if "assembly" in cfg:
         refs.append(("assembly.fig4", cfg["assembly"]["fig4"]))
@@ -145,11 +145,15 @@ def _physical_errors(cfg: Mapping) -> list[str]:
             msgs.append("config key 'experiments.sweep': missing (the validation stage needs the sweep experiment)")
         elif exps["sweep"]["excitation"]["kind"] != "sweep":
             msgs.append("config key 'experiments.sweep.excitation.kind': must be 'sweep'")
-    if "study" in cfg:
-        try:
-            get(cfg, cfg["study"]["parameter"])
-        except ConfigError:
-            msgs.append(f"config key 'study.parameter': '{cfg['study']['parameter']}' is not a key of the config")
+    for name, spec in ((cfg.get("study") or {}).get("assumptions") or {}).items():
+        plain = [v for v in spec["values"] if not isinstance(v, Mapping)]
+        if plain and "key" not in spec:
+            msgs.append(f"config key 'study.assumptions.{name}.key': missing (its values are plain)")
+        elif plain:
+            try:
+                get(cfg, spec["key"])
+            except ConfigError:
+                msgs.append(f"config key 'study.assumptions.{name}.key': '{spec['key']}' is not a key of the config")
     for key, name in refs:
         if name not in exps:
             msgs.append(f"config key '{key}': experiment '{name}' is not defined in 'experiments'")

@@ -14,7 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["identification_figures", "fig4", "plot_weight", "fig7", "fig8", "fig9", "save"]
+__all__ = ["failure_figure", "identification_figures", "fig4", "plot_weight", "fig7", "fig8", "fig9", "save"]
 
 _UNIT = {"x_meas": "um", "y_meas": "um", "y_ss": "um", "i_ypos": "A", "i_yneg": "A", "i_xpos": "A",
          "i_xneg": "A", "u_x": "A", "u_y": "A"}
@@ -32,14 +32,27 @@ def save(fig, path: str | Path) -> None:
     plt.close(fig)
 
 
-def identification_figures(info: Mapping, model, u_val, y_val, fs_hz: float, fig_dir: Path) -> None:
-    """Order scan (validation fit and singular values vs order) and validation overlay."""
-    from .identification import auto_horizon
+def failure_figure(stage: str, reason: str, path: str | Path) -> None:
+    """A figure that states that a stage failed and why (written in place of its figure)."""
+    import textwrap
 
-    fig_dir = Path(fig_dir)
-    sub = info["subsystem"]
-    scan = info["order_scan"]
+    fig, ax = plt.subplots(figsize=(8.5, 2.2))
+    ax.axis("off")
+    ax.text(0.01, 0.95, f"{stage} failed", fontsize=12, color="C3", va="top", weight="bold")
+    ax.text(0.01, 0.65, "\n".join(textwrap.wrap(reason, 110)[:6]), fontsize=8, va="top", family="monospace")
+    save(fig, path)
+
+
+def _order_figure(info: Mapping, path: Path) -> None:
+    """Fit and SIPPY singular values against order (or a note when the run has no order scan)."""
+    scan, sub = info["order_scan"], info["subsystem"]
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))
+    if scan is None:
+        for a in ax:
+            a.axis("off")
+        ax[0].text(0.0, 0.5, f"{sub}: no order scan in this run (identification.order_scan.orders is empty)")
+        save(fig, path)
+        return
     orders = np.asarray(scan["orders"])
     ax[0].plot(orders, scan["mean_fit"], "o-")
     ax[0].axvline(info["order"], color="C3", ls="--", label=f"selected order {info['order']}")
@@ -58,7 +71,16 @@ def identification_figures(info: Mapping, model, u_val, y_val, fs_hz: float, fig
         ax[1].set_ylabel("singular value (-)")
         ax[1].set_title("SIPPY subspace singular values")
     fig.tight_layout()
-    save(fig, fig_dir / f"{sub}_orders.png")
+    save(fig, path)
+
+
+def identification_figures(info: Mapping, model, u_val, y_val, fs_hz: float, fig_dir: Path) -> None:
+    """Order scan (validation fit and singular values vs order) and validation overlay."""
+    from .identification import auto_horizon
+
+    fig_dir = Path(fig_dir)
+    sub = info["subsystem"]
+    _order_figure(info, fig_dir / f"{sub}_orders.png")
     # validation overlay (first 0.1 s)
     n = min(len(u_val), int(0.1 * fs_hz))
     u, y = np.asarray(u_val)[:n], np.asarray(y_val)[:n]

@@ -12,9 +12,10 @@ import control
 import numpy as np
 
 from .identification import IdentifiedModel
-from .io import DataError, load_npz, save_npz
+from .io import DataError, atomic_path, load_npz, read_json, save_npz, write_json
 
-__all__ = ["FailedFit", "save_failed", "failure_reason", "save_model", "load_model", "save_statespace", "load_statespace", "save_weight", "load_weight"]
+__all__ = ["Failed", "save_failed", "write_failed", "check_failed", "failure_reason", "load_record",
+           "save_model", "load_model", "save_statespace", "load_statespace", "save_weight", "load_weight"]
 
 _ARRAYS = ("A", "B", "C", "D", "u_op", "y_op")
 
@@ -42,20 +43,55 @@ def save_model(path: str | Path, model: IdentifiedModel) -> None:
     save_npz(path, arrays, meta)
 
 
-class FailedFit(DataError):
-    """A model file records a failed identification (:func:`save_failed`), not a model."""
+class Failed(DataError):
+    """A stage output records a failure (:func:`write_failed`), not a result."""
 
 
 def save_failed(path: str | Path, reason: str, meta: Mapping | None = None) -> None:
-    """Write a *failed-fit* file in place of a model: the rule's output exists, and whoever
-    reads it learns that and why the fit failed (:func:`load_model` raises :class:`FailedFit`)."""
-    save_npz(path, {}, {"kind": "ssamb.FailedFit", "reason": str(reason), **dict(meta or {})})
+    """Write a *failed* NPZ in place of a result: the rule's output exists, and whoever reads it
+    learns that and why the stage failed (the loaders here raise :class:`Failed`)."""
+    save_npz(path, {}, {"kind": "ssamb.Failed", "reason": str(reason), **dict(meta or {})})
+
+
+def write_failed(path: str | Path, reason: str, stage: str) -> None:
+    """A failure marker in the format of ``path``: NPZ (:func:`save_failed`), JSON
+    (``{"failed": true, "stage", "error"}``), PNG (a figure stating the failure), else text."""
+    path = Path(path)
+    if path.suffix == ".npz":
+        save_failed(path, reason, {"stage": stage})
+    elif path.suffix == ".json":
+        write_json(path, {"failed": True, "stage": stage, "error": str(reason)})
+    elif path.suffix == ".png":
+        from .figures import failure_figure
+
+        failure_figure(stage, reason, path)
+    else:
+        with atomic_path(path) as tmp:
+            Path(tmp).write_text(f"{stage} failed: {reason}\n", encoding="utf-8")
+
+
+def check_failed(obj: Mapping, path: str | Path) -> Mapping:
+    """``obj`` (a JSON stage output or NPZ meta) unless it records a failure: then raise
+    :class:`Failed` naming the file, the stage and its reason."""
+    if obj.get("failed") or obj.get("kind") == "ssamb.Failed":
+        raise Failed(f"{path}: stage {obj.get('stage', '?')} failed: {obj.get('error', obj.get('reason'))}")
+    return obj
 
 
 def failure_reason(path: str | Path) -> str | None:
-    """The reason recorded in a failed-fit file, or None for a model file."""
-    _, meta = load_npz(path)
-    return meta.get("reason") if meta.get("kind") == "ssamb.FailedFit" else None
+    """The reason recorded in a failure marker (NPZ or JSON), or None for a result."""
+    path = Path(path)
+    meta = read_json(path) if path.suffix == ".json" else load_npz(path)[1]
+    if meta.get("failed") or meta.get("kind") == "ssamb.Failed":
+        return str(meta.get("error", meta.get("reason")))
+    return None
+
+
+def load_record(path: str | Path) -> tuple[dict, dict]:
+    """A simulation record (:func:`ssamb.io.load_npz`), or :class:`Failed` for a failure marker."""
+    arrays, meta = load_npz(path)
+    check_failed(meta, path)
+    return arrays, meta
 
 
 def load_model(path: str | Path) -> IdentifiedModel:
@@ -63,14 +99,12 @@ def load_model(path: str | Path) -> IdentifiedModel:
 
     Raises
     ------
-    FailedFit
+    Failed
         The file records a failed fit (the message gives its reason).
     DataError
         Not a model file.
     """
-    arrays, meta = load_npz(path)
-    if meta.get("kind") == "ssamb.FailedFit":
-        raise FailedFit(f"{path}: the identification failed: {meta.get('reason')}")
+    arrays, meta = load_record(path)
     if meta.get("kind") != "ssamb.IdentifiedModel":
         raise DataError(f"{path}: not an identified-model file (kind={meta.get('kind')!r})")
     return IdentifiedModel(
@@ -92,7 +126,7 @@ def save_statespace(path: str | Path, sys: control.StateSpace, meta: Mapping | N
 
 def load_statespace(path: str | Path) -> control.StateSpace:
     """Read a system written by :func:`save_statespace`."""
-    arrays, meta = load_npz(path)
+    arrays, meta = load_record(path)
     dt = meta.get("dt", 0.0) or 0
     return control.ss(arrays["A"], arrays["B"], arrays["C"], arrays["D"], dt,
                       inputs=meta["inputs"], outputs=meta["outputs"], name=meta.get("name", "sys"))
@@ -106,7 +140,7 @@ def save_weight(path: str | Path, gain: float, zeros_hz, poles_hz, meta: Mapping
 
 def load_weight(path: str | Path) -> control.TransferFunction:
     r"""Rebuild :math:`W(s) = K \prod(1 + s/\omega_z)/\prod(1 + s/\omega_p)` from a weight file."""
-    arrays, _ = load_npz(path)
+    arrays, _ = load_record(path)
     s = control.tf("s")
     w = control.tf([float(arrays["gain"])], [1.0])
     for fz in np.atleast_1d(arrays["zeros_hz"]):

@@ -204,11 +204,11 @@ def test_config_closeloop_section_is_valid():
         assert (REPO / path).exists(), (name, path)
 
 
-def test_report_section_cells(written):
-    from ssamb.closeloop.section import section_cells
+def test_report_section_on_a_real_analysis(written):
+    from ssamb.report.context import Context
+    from ssamb.report.elements import Image, Table
+    from ssamb.report.sections import closeloop
 
-    cells = section_cells(written)
-    assert [c.cell_type for c in cells][:2] == ["markdown", "code"]
-    for c in cells:
-        if c.cell_type == "code":
-            compile(c.source, "<cell>", "exec")
+    sec = closeloop(Context(Path(written), {}, {}, Path("config.yaml"), Path(written)))
+    assert sec.tables() and all(len(r) == len(t.header) for t in sec.tables() for r in t.rows)
+    assert all(Path(i.path).exists() for i in sec.items if isinstance(i, Image))

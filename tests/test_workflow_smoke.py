@@ -72,6 +72,54 @@ def test_every_stage_output_exists_and_is_sane(workdir):
     assert len(list((res / "benchmarks").rglob("*.tsv"))) >= 15
 
 
+def test_paper_way_and_a_scenario_that_shares_unchanged_stages(workdir):
+    res = workdir / "results"
+    s = json.loads((res / "summary.json").read_text())
+    assert {"stable", "fit_pct", "mu", "mu_peak_cause"} <= set(s["paper_way"])
+    assert "The paper's way" in (res / "report.html").read_text()
+    # the sweep-only scenario re-simulated the sweep and re-validated; nothing else
+    sw = res / "runs" / "sweep_amp"
+    assert (sw / "sim" / "sweep.npz").exists() and (sw / "validation" / "sweep.json").exists()
+    assert not any((sw / d).exists() for d in ("ident", "model", "uncertainty", "mu"))
+    assert len(list((sw / "sim").glob("*.npz"))) == 1
+    v = json.loads((sw / "summary.json").read_text())
+    assert v["details"]["validation"]["sweep"]["amplitude_m"] == pytest.approx(8e-5)
+    assert v["mu"] == s["mu"]  # shared, not recomputed
+
+
+def _planned(out: str) -> list[tuple[str, str]]:
+    """(rule, wildcards) of every job a dry run plans."""
+    jobs, rule = [], None
+    for line in out.splitlines():
+        if line.startswith(("rule ", "localrule ")):
+            rule = line.split()[1].rstrip(":")
+            jobs.append([rule, ""])
+        elif line.strip().startswith("wildcards:") and jobs:
+            jobs[-1][1] = line.split(":", 1)[1].strip()
+    return [tuple(j) for j in jobs]
+
+
+def test_changed_override_reruns_only_that_variant(workdir):
+    over = yaml.safe_load((workdir / "smoke.yaml").read_text())
+    over["scenarios"]["sweep_amp"]["experiments.sweep.excitation.amplitude_m"] = 8.5e-5
+    (workdir / "smoke3.yaml").write_text(yaml.safe_dump(over))
+    r = _run(workdir, "-n", "--cores", "1", "--configfile", "config.yaml", "smoke3.yaml")
+    jobs = [j for j in _planned(r.stdout + r.stderr) if j[0] != "all"]
+    assert sorted(j[0] for j in jobs) == ["simulate", "summary", "validate"], jobs
+    assert all("run=runs/sweep_amp/" in w for _, w in jobs), jobs
+
+
+def test_study_plans_one_job_per_stage_and_variant(workdir):
+    r = _run(workdir, "-n", "--cores", "1", "--configfile", "config.yaml", "smoke.yaml", "study")
+    jobs = _planned(r.stdout + r.stderr)
+    runs = {w.split("run=")[1].split(",")[0] for _, w in jobs if "run=runs/study-" in w}
+    assert {"runs/study-baseline/", "runs/study-sweep_law=log/", "runs/study-sweep_law=log+bias=3.2/"} <= runs
+    # one job per (rule, wildcards): nothing planned twice
+    assert len(jobs) == len(set(jobs))
+    # the sweep-law variant shares the study baseline's identification: it plans no identify job
+    assert not [j for j in jobs if j[0] == "identify" and "run=runs/study-sweep_law=log/" in j[1]]
+
+
 def test_changed_parameter_reruns_only_dependents(workdir):
     over = yaml.safe_load((workdir / "smoke.yaml").read_text())
     over["mu"]["n_points"] = 41

@@ -4,7 +4,7 @@ The notebook (:func:`make_notebook`) is one setup cell and one cell per section,
 section function of :mod:`ssamb.report.sections` and showing what it returns
 (:func:`ssamb.report.render.show`): the notebook holds no logic and no number. It is executed with
 nbclient and exported by nbconvert to one self-contained HTML file (figures embedded). The only
-typed numbers in the report are quotations of the paper (:mod:`ssamb.report.paper`).
+typed numbers in the report are quotations of the paper (:mod:`ssamb.paper`).
 """
 from __future__ import annotations
 
@@ -20,18 +20,19 @@ __all__ = ["make_notebook", "render_notebook", "build_report"]
 
 
 def make_notebook(results_dir: str | Path, config_path: str | Path, closeloop_dir: str | Path | None = None,
-                  sections: Sequence[str] = ORDER) -> nbformat.NotebookNode:
+                  study_json: str | Path | None = None, sections: Sequence[str] = ORDER) -> nbformat.NotebookNode:
     """The report notebook: a setup cell (the :class:`~ssamb.report.context.Context`) and one cell
     per section name."""
     nb = new_notebook()
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
     cl = None if closeloop_dir is None else str(Path(closeloop_dir).resolve())
+    st = None if study_json is None else str(Path(study_json).resolve())
     nb.cells.append(new_code_cell(
         "import warnings\nimport matplotlib\nmatplotlib.use('Agg')\nimport matplotlib.pyplot as plt\n"
         "from ssamb.report import sections\nfrom ssamb.report.context import load_context\n"
         "from ssamb.report.render import show\nwarnings.filterwarnings('ignore')\n"
         "plt.rcParams.update({'figure.dpi': 110, 'axes.grid': True})\n"
-        f"ctx = load_context({str(Path(results_dir).resolve())!r}, {str(Path(config_path).resolve())!r}, {cl!r})"))
+        f"ctx = load_context({str(Path(results_dir).resolve())!r}, {str(Path(config_path).resolve())!r}, {cl!r}, {st!r})"))
     for name in sections:
         nb.cells.append(new_code_cell(f"sec = sections.{name}(ctx)\nif sec is not None:\n    show(sec)"))
     return nb
@@ -59,7 +60,8 @@ def render_notebook(nb: nbformat.NotebookNode, out_html: str | Path, timeout_s: 
 
 def build_report(results_dir: str | Path, out_html: str | Path, out_ipynb: str | Path | None = None,
                  config_path: str | Path = "config.yaml", closeloop_dir: str | Path | None = None,
-                 timeout_s: int = 600) -> None:
-    """Build the full report from ``results_dir`` (needs ``summary.json`` and the stage files)."""
-    render_notebook(make_notebook(results_dir, config_path, closeloop_dir), out_html, timeout_s=timeout_s,
-                    out_ipynb=out_ipynb)
+                 study_json: str | Path | None = None, timeout_s: int = 600) -> None:
+    """Build the full report from ``results_dir`` (needs ``summary.json`` and the stage files;
+    with ``study_json`` the assumption study too)."""
+    render_notebook(make_notebook(results_dir, config_path, closeloop_dir, study_json), out_html,
+                    timeout_s=timeout_s, out_ipynb=out_ipynb)

@@ -1,121 +1,127 @@
-"""The paper-versus-reproduction table: one row per quantity, ours read from ``summary.json``,
-the paper's quoted (:mod:`ssamb.report.paper`), and one sentence on each difference whose
-wording follows the values (no number in a sentence is typed in)."""
+"""The paper-versus-reproduction table: one row per headline, the paper's value (quoted,
+:mod:`ssamb.paper`), ours (default run), the paper's way (``summary['paper_way']``) and why
+they differ -- each "why" computed: the paper's-way run, the critical amplitudes, the computed
+cause of the μ peak, and the study variant that moves the number most (when the study ran)."""
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Any, Mapping
 
-from .paper import PAPER
+from ..paper import PAPER
 
-__all__ = ["comparison_rows"]
+__all__ = ["comparison_rows", "HEADER"]
+
+HEADER = ["quantity", "paper", "ours", "the paper's way", "why (computed)"]
 
 
-def _f(v, d=4):
+def _f(v, d=4, unit=""):
     if v is None:
         return "none"
     if isinstance(v, float):
-        return f"{v:.{d}g}"
-    return str(v)
+        return f"{v:.{d}g}{unit}"
+    return f"{v}{unit}"
 
 
-def comparison_rows(S: Mapping) -> list[tuple[str, str, str, str]]:
-    """Rows ``(quantity, paper, ours, why they differ)``."""
-    rows = []
-    det = S.get("details", {})
-    asm = det.get("assembly", {})
-    ss_in = asm.get("subsystem_inputs", {}).get("selfsensing", ["?"])[0]
-    amp_in = asm.get("subsystem_inputs", {}).get("amplifier", [])
-    ps = asm.get("paper_structure", {})
+def _get(d: Mapping | None, *keys) -> Any:
+    for k in keys:
+        if not isinstance(d, Mapping):
+            return None
+        d = d.get(k)
+    return d
+
+
+def mover(study: Mapping | None, key: str, unit: str = "", d: int = 3) -> str:
+    """'moved most by <variant> (baseline -> value)' for a headline quantity of the study, or
+    a note that the study has not run."""
+    if not study:
+        return "Which assumption moves it: run `snakemake --cores 2 study`."
+    var = study["variants"]
+    base = var.get(study["baseline"], {}).get(key)
+    cands = [(n, v[key]) for n, v in var.items() if n != study["baseline"] and v.get(key) is not None]
+    if base is None or not cands:
+        return "The study has no value for it."
+    name, val = max(cands, key=lambda nv: abs(nv[1] - base))
+    return f"Moved most by study variant `{name}` ({_f(base, d, unit)} -> {_f(val, d, unit)})."
+
+
+def _which(study: Mapping | None, answer: str, what: str) -> str:
+    if not study:
+        return ""
+    names = study["answers"][answer]
+    return f" Variants that {what}: " + (", ".join(f"`{n}`" for n in names) if names else "none") + "."
+
+
+def _fit_rows(S, P, study) -> list:
     fx, fy = S["fit_pct"]["x"], S["fit_pct"]["y"]
-    rows.append(("closed-loop LTI fit, x (Fig. 4)", f"{PAPER['fit_x_pct'][0]} %", f"{_f(fx)} %",
-                 "Both are close: the x loop uses an eddy-current sensor, and an LTI model of it is accurate."
-                 if fx is not None and abs(fx - PAPER["fit_x_pct"][0]) < 10 else
-                 "The x fits differ; the identification data and the Fig. 4 signal are ours, not the paper's."))
-    ss_var = ps.get("selfsensing", {})
-    pv = (det.get("identification", {}).get("selfsensing", {}) or {}).get("paper_variant") or {}
-    pv_fit = (pv.get("fit_pct") or [None])[0]
-    if ss_in != "i_ypos":
-        why_y = (f"Our self-sensing model reads the true position ({ss_in}); the paper's reads the coil current "
-                 f"i_ypos, which a linear model cannot turn into position (DCM demodulates the ripple amplitude). "
-                 f"Identified the paper's way it fits {_f(pv_fit, 3)} % (the paper: {PAPER['fit_y_pct'][0]} % on y) and its assembled "
-                 f"loop is {'unstable' if ss_var and not ss_var.get('stable', True) else 'stable'} "
-                 f"(spectral radius {_f(ss_var.get('spectral_radius'))}).")
-    else:
-        why_y = "Same model structure as the paper; the difference comes from the simulator's DCM implementation."
-    rows.append(("closed-loop LTI fit, y (Fig. 4)", f"{PAPER['fit_y_pct'][0]} %", f"{_f(fy)} %", why_y))
-    for k in ("plant", "amplifier", "selfsensing"):
-        o = S["orders"].get(k)
-        p = PAPER["order_" + k][0]
-        rows.append((f"{k} model order", str(p), _f(o),
-                     "Same order (config default); the order scan in section 3 shows the evidence."
-                     if o == p else "Order chosen differently from the paper; see the order scan."))
-    if amp_in and "x_meas" not in amp_in:
-        av = ps.get("amplifier", {})
-        apv = (det.get("identification", {}).get("amplifier", {}) or {}).get("paper_variant") or {}
-        afit = apv.get("fit_pct")
-        rows.append(("amplifier model inputs", "2 commands + 2 positions", ", ".join(amp_in),
-                     "In closed loop the positions are causal functions of past commands, so their separate effect is "
-                     "not identifiable; with the paper's 4 inputs the mean validation fit is "
-                     f"{_f(sum(afit) / len(afit) if afit else None, 3)} % and the assembled loop is "
-                     f"{'stable' if av.get('stable') else 'unstable'} (spectral radius {_f(av.get('spectral_radius'))})."))
-    rows.append(("weight fit, largest deviation from the envelope", f"<= {PAPER['weight_fit_max_db'][0]} dB",
-                 f"{_f(S['weight_fit_max_db'], 3)} dB",
-                 "Within the paper's 3 dB tolerance." if S["weight_fit_max_db"] <= 3.0 + 1e-9 else
-                 "Above 3 dB: the weight could not follow the envelope at the allowed order."))
-    mu_ss = S["mu"].get("selfsensing")
-    if mu_ss:
-        rows.append(("weight scale factor for a mu peak of 1 (self-sensing)", _f(PAPER["mu_scale_for_unity"][0]),
-                     _f(mu_ss["scale_for_unity"], 3),
-                     "Ours is far less conservative: our nominal self-sensing model is accurate (position input), so "
-                     "the measured mismatch, hence the weight, is small relative to the loop's tolerance."
-                     if mu_ss["scale_for_unity"] > 10 * PAPER["mu_scale_for_unity"][0] else
-                     "Comparable conservatism to the paper's."))
-        rows.append(("mu peak frequency (self-sensing)", f"~{PAPER['mu_peak_hz'][0]:g} Hz",
-                     f"{_f(mu_ss['peak_hz'], 3)} Hz",
-                     "The paper's peak sat at the plant's critical frequency near 2 Hz; ours sits near the loop's "
-                     "crossover, where the sensitivity of the closed loop to the self-sensing path is largest."
-                     if mu_ss["peak_hz"] > 5 else "Near the paper's frequency."))
-    dl = S["delevitation_s"]
-    val = det.get("validation", {}) or {}
-    outs = {o["model"]: o for o in val.get("outcomes", [])}
-    sw = val.get("sweep") or {}
+    px, py = _get(P, "fit_pct", "x"), _get(P, "fit_pct", "y")
+    stable = _get(P, "stable")
+    why_y = (f"With the paper's structure the assembled loop is {'stable' if stable else 'unstable'} "
+             f"(spectral radius {_f(_get(P, 'spectral_radius'), 6)}) and y fits {_f(py, 4, ' %')}; ours (position-input "
+             f"self-sensing, command-input amplifier) fits {_f(fy, 4, ' %')}. " + mover(study, "fit_y_pct", " %")
+             + _which(study, "fit_y_near_paper", "fit y within 10 points of the paper's"))
+    return [("closed-loop LTI fit, x (Fig. 4)", f"{PAPER['fit_x_pct'][0]} %", _f(fx, 4, " %"), _f(px, 4, " %"),
+             "The x loop reads the eddy-current sensor in both structures. " + mover(study, "fit_x_pct", " %")),
+            ("closed-loop LTI fit, y (Fig. 4)", f"{PAPER['fit_y_pct'][0]} %", _f(fy, 4, " %"), _f(py, 4, " %"), why_y)]
 
-    def _event(o):
-        """'t s at f Hz' for a delevitating outcome, else 'none' with the critical amplitude."""
-        if o is None:
-            return "none"
-        if o.get("delevitates"):
-            return f"{o['time_s']:.3g} s at {o['sweep_hz']:.3g} Hz"
-        ca = o.get("critical_amplitude_m")
-        return "none" + (f" (delevitates from {ca * 1e6:.0f} um)" if ca else "")
 
-    if sw:
-        rate = (sw["f_stop_hz"] - sw["f_start_hz"]) / sw["sweep_duration_s"]
-        rows.append(("sweep signal (section 6)",
-                     f"{PAPER['sweep_amplitude_m'][0] * 1e6:.0f} um, {PAPER['sweep_band_hz'][0][0]:g}-"
-                     f"{PAPER['sweep_band_hz'][0][1]:g} Hz, duration not stated",
-                     f"{sw['amplitude_m'] * 1e6:.0f} um, {sw['f_start_hz']:g}-{sw['f_stop_hz']:g} Hz in "
-                     f"{sw['sweep_duration_s']:g} s ({sw.get('law', 'linear')}, {rate:.0f} Hz/s, {sw.get('axis', 'y')} axis)",
-                     "The paper gives amplitude and band but not the rate; ours (config validation.sweep) "
-                     + (f"lasts longer than the paper's {PAPER['delevitation_nonlinear_s'][0]} s event."
-                        if sw["sweep_duration_s"] > PAPER["delevitation_nonlinear_s"][0] else
-                        f"ends before the paper's {PAPER['delevitation_nonlinear_s'][0]} s event, so its times "
-                        "are not comparable with the paper's.")))
-    rows.append(("delevitation in the 99 um sweep, nonlinear", f"just after {PAPER['delevitation_nonlinear_s'][0]} s",
-                 _event(outs.get("nonlinear")) if outs else _f(dl["nonlinear"]),
-                 "Our nonlinear model stays levitated at 99 um (the radial peak stays below the clearance); "
-                 "it delevitates from the amplitude given (bisection, section 6)."
-                 if dl["nonlinear"] is None else "Ours delevitates too; the time depends on our sweep rate."))
-    rows.append(("delevitation, nominal LTI model", "none", _event(outs.get("nominal LTI")) if outs else _f(dl["nominal_lti"]),
-                 "As in the paper, the nominal LTI model does not delevitate." if dl["nominal_lti"] is None
-                 else "Unlike the paper, the LTI model reaches the clearance."))
+def _order_rows(S, P) -> list:
+    return [(f"{k} model order", str(PAPER['order_' + k][0]), _f(S["orders"].get(k)), _f(_get(P, "orders", k)),
+             "Configured (identification.<subsystem>.order); the order scan in section 3 is the evidence.")
+            for k in ("plant", "amplifier", "selfsensing")]
+
+
+def _mu_rows(S, P, study) -> list:
+    ss, pss = S["mu"].get("selfsensing") or {}, _get(P, "mu", "selfsensing") or {}
+    cause = (ss.get("cause") or {}).get("summary") or "cause not computed"
+    pcause = (_get(P, "mu_peak_cause") or {}).get("summary") or "cause not computed"
+    return [("weight fit, largest deviation from the envelope", f"<= {PAPER['weight_fit_max_db'][0]} dB",
+             _f(S["weight_fit_max_db"], 3, " dB"), _f(_get(P, "weight_fit_max_db"), 3, " dB"),
+             "Both fits are held to the same tolerance (config uncertainty.tol_db)."),
+            ("weight scale factor for a μ peak of 1 (self-sensing)", _f(PAPER["mu_scale_for_unity"][0]),
+             _f(ss.get("scale_for_unity"), 3), _f(pss.get("scale_for_unity"), 3),
+             "The scale is 1/peak of μ for the measured weight. " + mover(study, "mu_scale_for_unity")),
+            ("μ peak frequency (self-sensing)", f"~{PAPER['mu_peak_hz'][0]:g} Hz", _f(ss.get("peak_hz"), 3, " Hz"),
+             _f(pss.get("peak_hz"), 3, " Hz"), f"Ours: {cause}. The paper's way: {pcause}. "
+             + mover(study, "mu_peak_hz", " Hz") + _which(study, "mu_peak_near_2hz", "put the peak within a factor 2 of 2 Hz"))]
+
+
+def _event(o: Mapping | None) -> str:
+    if o is None:
+        return "none"
+    if o.get("delevitates"):
+        return f"{o['time_s']:.3g} s at {o['sweep_hz']:.3g} Hz"
+    ca = o.get("critical_amplitude_m")
+    return "none" + (f" (delevitates from {ca * 1e6:.0f} µm)" if ca else "")
+
+
+def _sweep_rows(S, P, study) -> list:
+    outs = {o["model"]: o for o in (_get(S, "details", "validation", "outcomes") or [])}
     aug = [(m.split("Delta=")[-1], o) for m, o in outs.items() if m.startswith("augmented")]
-    rows.append(("delevitation, augmented LTI model", "none",
-                 "; ".join(f"Delta={k}: {_event(o)}" for k, o in aug) if aug else _f(dl["augmented_lti"]),
-                 "As in the paper, no augmented model delevitates at this amplitude." if dl["augmented_lti"] is None
-                 else "At least one choice of Delta reaches the clearance at this amplitude, unlike the paper's "
-                      "augmented model; section 6 gives each model's delevitation amplitude."))
+    dl, pdl = S["delevitation_s"], _get(P, "delevitation_s") or {}
+    sw = _get(S, "details", "validation", "sweep") or {}
+    band = PAPER["sweep_band_hz"][0]
+    ours = (f"{sw['amplitude_m'] * 1e6:.3g} µm, {sw['f_start_hz']:g}-{sw['f_stop_hz']:g} Hz in {sw['sweep_duration_s']:g} s "
+            f"({sw.get('law', 'linear')})") if sw else "none"
+    return [("sweep signal (section 6)", f"{PAPER['sweep_amplitude_m'][0] * 1e6:.3g} µm, {band[0]:g}-{band[1]:g} Hz, "
+             "duration not stated", ours, ours, "The paper gives amplitude and band, not the rate; the study varies "
+             "the duration and the law (config study.assumptions)."),
+            ("delevitation in the sweep, nonlinear", f"just after {PAPER['delevitation_nonlinear_s'][0]} s",
+             _event(outs.get("nonlinear")), _f(pdl.get("nonlinear"), 3, " s"),
+             "The critical sweep amplitudes (section 6) say how far from delevitation each model is. "
+             + mover(study, "critical_nonlinear_um", " µm")
+             + _which(study, "delevitation", "make the nonlinear model delevitate while the LTI models do not")),
+            ("delevitation, nominal LTI model", "none", _event(outs.get("nominal LTI")), _f(pdl.get("nominal_lti"), 3, " s"),
+             "An LTI model delevitates only above its exact critical amplitude. " + mover(study, "critical_lti_um", " µm")),
+            ("delevitation, augmented LTI model", "none",
+             "; ".join(f"Delta={k}: {_event(o)}" for k, o in aug) if aug else _f(dl["augmented_lti"]),
+             _f(pdl.get("augmented_lti"), 3, " s"), "Δ = +1, −1 and an all-pass, each with the measured weight.")]
+
+
+def comparison_rows(S: Mapping, study: Mapping | None = None) -> list[tuple]:
+    """Rows ``(quantity, paper, ours, the paper's way, why)`` from a default-run summary and,
+    when it has run, the assumption study (``study.json``)."""
+    P = S.get("paper_way")
     iso = S["iso14839_peak_sensitivity"]
-    rows.append(("ISO 14839-3 peak sensitivity x / y", "not reported", f"{_f(iso['x'], 3)} / {_f(iso['y'], 3)}",
-                 "The baseline the paper argues against, computed from the same closed-loop model."))
-    return rows
+    return (_fit_rows(S, P, study) + _order_rows(S, P) + _mu_rows(S, P, study) + _sweep_rows(S, P, study)
+            + [("ISO 14839-3 peak sensitivity x / y", "not reported", f"{_f(iso['x'], 3)} / {_f(iso['y'], 3)}",
+                " / ".join(_f(v, 3) for v in (_get(P, "iso14839_peak_sensitivity") or {}).values()) or "none",
+                "The baseline the paper argues against, from the same closed-loop model.")])

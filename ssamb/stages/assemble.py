@@ -19,11 +19,16 @@ from typing import Mapping
 import numpy as np
 
 from ..channels import CL_OUTPUTS
-from ..closed_loop import (assemble_closed_loop, d2c_summary, lti_initial_state, simulate_closed_loop,
-                           stability)
+from ..closed_loop import (
+    assemble_closed_loop,
+    d2c_summary,
+    lti_initial_state,
+    simulate_closed_loop,
+    stability,
+)
 from ..identification import nrmse_fit
-from ..io import load_npz, write_json
-from ..model_io import FailedFit, load_model, save_statespace
+from ..io import write_json
+from ..model_io import Failed, load_model, load_record, save_statespace
 from ..sim.controller import pid_discrete
 
 __all__ = ["run_assemble", "structure_variants"]
@@ -36,12 +41,12 @@ def structure_variants(models: Mapping, paper_models: Mapping[str, str | Path], 
     for k, path in paper_models.items():
         try:
             paper[k] = load_model(path)
-        except FailedFit as exc:
+        except Failed as exc:
             paper[k] = exc
     out = {}
     for k in list(paper) + (["all"] if paper else []):
         mm = {s: paper.get(s, models[s]) if k == "all" else (paper[k] if s == k else models[s]) for s in models}
-        failed = [f"{s}: {v}" for s, v in mm.items() if isinstance(v, FailedFit)]
+        failed = [f"{s}: {v}" for s, v in mm.items() if isinstance(v, Failed)]
         if failed:
             out[k] = {"failed": True, "error": "; ".join(failed)}
             continue
@@ -59,7 +64,7 @@ def _fig4(cl, fig4_npz, out_fig) -> dict:
     """Fits of the LTI loop to the nonlinear Fig. 4 run, per channel; the figure."""
     from ..figures import fig4
 
-    nl, _ = load_npz(fig4_npz)
+    nl, _ = load_record(fig4_npz)
     if not stability(cl).stable:
         if out_fig is not None:
             nan = np.full_like(np.asarray(nl["t"], float), np.nan)

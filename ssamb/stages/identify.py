@@ -20,14 +20,14 @@ import numpy as np
 from ..channels import VARIANTS
 from ..identification import identify, order_scan, subsystem_io
 from ..identification.selection import compare_and_select, model_summary
-from ..io import DataError, load_npz, write_json
-from ..model_io import save_failed, save_model
+from ..io import DataError, write_json
+from ..model_io import load_record, save_failed, save_model
 
 __all__ = ["run_identify"]
 
 
 def _load_io(path, subsystem: str, variant: str):
-    arrays, _ = load_npz(path)
+    arrays, _ = load_record(path)
     try:
         return subsystem_io(arrays, subsystem, variant), float(arrays["fs_hz"])
     except DataError as exc:
@@ -37,6 +37,17 @@ def _load_io(path, subsystem: str, variant: str):
 def _cut(io, duration_s: float, fs_hz: float):
     n = min(len(io.u), int(round(duration_s * fs_hz)))
     return io.u[:n], io.y[:n]
+
+
+def _order_scan(est, val, scan_cfg: Mapping, sel, fs_hz: float, kw: Mapping):
+    """Validation fit against order with the selected method on a shorter record (evidence);
+    None when the config lists no orders."""
+    if not scan_cfg["orders"]:
+        return None
+    (us, ys), (uvs, yvs) = _cut(est, float(scan_cfg["duration_s"]), fs_hz), _cut(val, float(scan_cfg["duration_s"]), fs_hz)
+    return order_scan(us, ys, orders=[int(o) for o in scan_cfg["orders"]], method=sel.method, fs_hz=fs_hz,
+                      input_names=est.input_names, output_names=est.output_names, u_val=uvs, y_val=yvs,
+                      input_directions=sel.input_directions, **kw)
 
 
 def _paper_variant(est_npz, val_npz, subsystem: str, variant: str, order: int, method: str,
@@ -90,17 +101,13 @@ def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsyst
     kw = {"ss_f": int(params["ss_f"]), "ss_p": int(params["ss_p"])}
     (est, fs), (val, _) = _load_io(estimation_npz, subsystem, variant), _load_io(validation_npz, subsystem, variant)
     sel = compare_and_select(est, val, subsystem, variant, order, tuple(params["methods"]), fs, **kw)
-    scan_s = float(params["order_scan"]["duration_s"])
-    (us, ys), (uvs, yvs) = _cut(est, scan_s, fs), _cut(val, scan_s, fs)
-    scan = order_scan(us, ys, orders=[int(o) for o in params["order_scan"]["orders"]], method=sel.method,
-                      fs_hz=fs, input_names=est.input_names, output_names=est.output_names, u_val=uvs,
-                      y_val=yvs, input_directions=sel.input_directions, **kw)
+    scan = _order_scan(est, val, params["order_scan"], sel, fs, kw)
     other = paper if variant != paper else ours
     variant_info = _paper_variant(estimation_npz, validation_npz, subsystem, other, order, sel.method, kw,
                                   out_variant)
     save_model(out_model, sel.model)
     info = {"subsystem": subsystem, "variant": {key: variant}, "paper_variant": variant_info,
-            **model_summary(sel, val, fs), "order_scan": scan.as_dict(),
+            **model_summary(sel, val, fs), "order_scan": None if scan is None else scan.as_dict(),
             "estimation_samples": int(len(est.u)), "validation_samples": int(len(val.u))}
     write_json(out_json, info)
     if fig_dir is not None:

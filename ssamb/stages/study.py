@@ -1,106 +1,125 @@
-r"""Parameter study: the μ margin and the delevitation amplitude over one physical parameter.
+r"""Stage ``study_collect``: the assumption study's headline numbers, tornado charts and answers.
 
-One study point runs the analysis chain in one process for a config with one value changed
-(:func:`run_study_point`): simulate the identification, validation, multisine and sweep
-experiments, identify the three subsystems (configured methods and orders; no order scan),
-assemble the closed loop, measure the self-sensing weight, compute μ for the self-sensing case,
-and find the sweep amplitude at which the nonlinear model and the nominal LTI model delevitate.
-The workflow runs the points as separate jobs (``rule study_point``, wildcard ``value``), so they
-spread over the cores of one machine or over a cluster, and :func:`collect_study` gathers them.
+Every variant is a run of the chain (:mod:`ssamb.scenarios`); this stage reads their
+``summary.json`` files and, per headline quantity, tabulates the variants against the study's
+baseline run, draws a tornado chart per headline, and answers -- by computation over the
+variants -- which assumptions reproduce each of the paper's three headline results.
 """
 from __future__ import annotations
 
-import copy
-import os
-import tempfile
-import time
 from pathlib import Path
 from typing import Mapping, Sequence
 
-import numpy as np
-
-from ..config import apply_overrides, validate_config
 from ..io import read_json, write_json
+from ..paper import PAPER
+from ..scenarios import study_variants
 
-__all__ = ["run_study_point", "collect_study"]
+__all__ = ["HEADLINES", "variant_quantities", "collect_study", "answers"]
+
+#: headline quantity -> (label, unit)
+HEADLINES = {
+    "fit_y_pct": ("closed-loop LTI fit, y (Fig. 4)", "%"),
+    "mu_peak_hz": ("self-sensing μ peak frequency", "Hz"),
+    "mu_scale_for_unity": ("weight scale for a μ peak of 1 (self-sensing)", "-"),
+    "critical_nonlinear_um": ("sweep amplitude that delevitates the nonlinear model", "µm"),
+    "critical_lti_um": ("sweep amplitude that delevitates the nominal LTI model", "µm"),
+    "delevitation_nonlinear_s": ("delevitation time of the nonlinear model in the sweep", "s"),
+}
 
 
-def run_study_point(cfg: Mapping, parameter: str, value: float, out_json: str | Path) -> dict:
-    """Run the chain for ``cfg`` with ``parameter`` (dotted key) set to ``value``; write a JSON."""
-    from ..sim import simulate
-    from .assemble import run_assemble
-    from .identify import run_identify
-    from .mu import run_mu
-    from .uncertainty import run_uncertainty
-    from .validate import run_validate
+def _critical_um(val: Mapping | None, model: str):
+    for o in (val or {}).get("outcomes", []):
+        if o["model"] == model and o.get("critical_amplitude_m") is not None:
+            return o["critical_amplitude_m"] * 1e6
+    return None
 
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    t0 = time.perf_counter()
-    c = apply_overrides(cfg, {parameter: value})
-    validate_config(c)
-    idc = copy.deepcopy(c["identification"])
-    idc["order_scan"] = {"orders": [idc["plant"]["order"]], "duration_s": idc["order_scan"]["duration_s"]}
-    with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp)
-        exps = {c["identification"]["estimation"], c["identification"]["validation"], c["assembly"]["fig4"],
-                c["uncertainty"]["experiment"], "sweep"}
-        delev = {}
-        for e in exps:
-            res = simulate(c, e, progress=False)
-            res.save(d / f"{e}.npz")
-            delev[e] = res.meta["delevitation_s"]
-        models = {}
-        for sub in ("plant", "amplifier", "selfsensing"):
-            run_identify(d / f"{idc['estimation']}.npz", d / f"{idc['validation']}.npz", sub, idc,
-                         d / f"{sub}.npz", d / f"{sub}_ev.json", d / f"{sub}_paper.npz")
-            models[sub] = d / f"{sub}.npz"
-        asm = run_assemble(models, {}, d / f"{c['assembly']['fig4']}.npz", c, d / "cl.npz",
-                           d / "asm.json", None, c["assembly"]["continuous_method"])
-        out = {"parameter": parameter, "value": value, "stable": asm["stable"], "fit_pct": asm["fit_pct"],
-               "identification_delevitated": {k: v for k, v in delev.items() if v is not None}}
-        if asm["stable"]:
-            unc = run_uncertainty(d / f"{c['uncertainty']['experiment']}.npz", d / "cl.npz", models["selfsensing"],
-                                  "selfsensing", c["uncertainty"], d / "w.npz", d / "w.json")
-            mu = run_mu(models, {"selfsensing": d / "w.npz"}, "selfsensing", c, c["mu"], d / "mu.json", d / "mu.npz")
-            val = run_validate(d / "sweep.npz", models, d / "w.npz",
-                               {**c, "experiments": {"sweep": c["experiments"]["sweep"]}}, c["validation"],
-                               d / "val.json")
-            crit = {o["model"]: o.get("critical_amplitude_m") for o in val["outcomes"]}
-            out.update({"weight_max_dev_db": unc["max_dev_db"],
-                        "mu_peak": mu["peak"], "mu_peak_hz": mu["peak_hz"], "mu_margin": mu["margin"],
-                        "critical_amplitude_m": {"nonlinear": crit.get("nonlinear"),
-                                                 "nominal_lti": crit.get("nominal LTI")}})
-    out["time_s"] = time.perf_counter() - t0
-    write_json(out_json, out)
+
+def variant_quantities(s: Mapping) -> dict:
+    """The headline quantities of one run's summary (None where missing or failed)."""
+    det = s.get("details") or {}
+    mu = (s.get("mu") or {}).get("selfsensing") or {}
+    val = det.get("validation")
+    dl = s.get("delevitation_s") or {}
+    return {"fit_y_pct": (s.get("fit_pct") or {}).get("y"), "fit_x_pct": (s.get("fit_pct") or {}).get("x"),
+            "stable": (det.get("assembly") or {}).get("stable"), "mu_peak": mu.get("peak"),
+            "mu_peak_hz": mu.get("peak_hz"), "mu_scale_for_unity": mu.get("scale_for_unity"),
+            "critical_nonlinear_um": _critical_um(val, "nonlinear"),
+            "critical_lti_um": _critical_um(val, "nominal LTI"),
+            "delevitation_nonlinear_s": dl.get("nonlinear"), "delevitation_nominal_lti_s": dl.get("nominal_lti"),
+            "delevitation_augmented_lti_s": dl.get("augmented_lti"), "failed": s.get("failed") or {}}
+
+
+def _near(v, target: float, factor: float) -> bool:
+    return v is not None and target / factor <= v <= target * factor
+
+
+def answers(variants: Mapping[str, Mapping]) -> dict:
+    """Which variants reproduce each of the paper's headlines (computed from their numbers):
+    the nonlinear model delevitates in the sweep while the nominal and augmented LTI models do
+    not; the self-sensing μ peak near the paper's ~2 Hz (within a factor 2); the y fit within
+    10 points of the paper's."""
+    out = {"delevitation": [], "mu_peak_near_2hz": [], "fit_y_near_paper": []}
+    for name, q in variants.items():
+        if (q["delevitation_nonlinear_s"] is not None and q["delevitation_nominal_lti_s"] is None
+                and q["delevitation_augmented_lti_s"] is None):
+            out["delevitation"].append(name)
+        if _near(q["mu_peak_hz"], PAPER["mu_peak_hz"][0], 2.0):
+            out["mu_peak_near_2hz"].append(name)
+        if q["fit_y_pct"] is not None and abs(q["fit_y_pct"] - PAPER["fit_y_pct"][0]) <= 10.0:
+            out["fit_y_near_paper"].append(name)
     return out
 
 
-def collect_study(point_jsons: Sequence[str | Path], out_json: str | Path, out_fig: str | Path | None = None) -> dict:
-    """Gather the study points (sorted by value) into one JSON and a figure."""
-    pts = sorted((read_json(p) for p in point_jsons), key=lambda r: r["value"])
-    res = {"parameter": pts[0]["parameter"] if pts else None, "points": pts}
+def _tornado(quant: Mapping, assumptions: Mapping, baseline: Mapping, path: str | Path) -> None:
+    """One panel per headline: per assumption, the span of the quantity over its values (bars
+    from the baseline value), failed variants marked."""
+    import matplotlib.pyplot as plt
+
+    from ..figures import save
+
+    names = list(assumptions)
+    fig, axs = plt.subplots(2, 3, figsize=(13, 1.2 + 0.32 * max(4, len(names)) * 2), squeeze=False)
+    for ax, (key, (label, unit)) in zip(axs.ravel(), HEADLINES.items()):
+        b = baseline.get(key)
+        for i, a in enumerate(names):
+            vals = [quant[v][key] for v in assumptions[a] if quant[v][key] is not None]
+            for v in vals:
+                ax.plot([b if b is not None else v, v], [i, i], color="C0", lw=6, alpha=0.5, solid_capstyle="butt")
+            if len(vals) < len(assumptions[a]):
+                ax.plot([b if b is not None else 0], [i], "x", color="C3")
+        if b is not None:
+            ax.axvline(b, color="k", lw=0.8)
+        ax.set_yticks(range(len(names)), names, fontsize=7)
+        ax.set_title(f"{label} ({unit})", fontsize=8)
+        if key in ("mu_peak_hz", "mu_scale_for_unity") and all(
+                (quant[v][key] or 0) > 0 for a in names for v in assumptions[a]) and (b or 0) > 0:
+            ax.set_xscale("log")
+    fig.suptitle("Assumption study: each bar spans a headline over one assumption's values (line: baseline; "
+                 "x: a variant without this number)", fontsize=9)
+    fig.tight_layout()
+    save(fig, path)
+
+
+def collect_study(study: Mapping, runs: Sequence[str], summaries: Sequence[str | Path], out_json: str | Path,
+                  out_fig: str | Path | None = None) -> dict:
+    """Read the variants' summaries (``runs`` are their prefixes ``runs/<name>/``, in the order of
+    ``summaries``), write ``study.json`` (per variant: overrides and headline quantities; per
+    assumption: its variants; the computed answers) and the tornado charts."""
+    names = [r.strip("/").split("/", 1)[1] for r in runs]
+    quant = {n: variant_quantities(read_json(p)) for n, p in zip(names, summaries)}
+    overrides = study_variants({"study": study})
+    assumptions: dict[str, list] = {}
+    for n in names:
+        if n != "study-baseline" and "+" not in n:
+            assumptions.setdefault(n[len("study-"):].split("=", 1)[0], []).append(n)
+    baseline = quant.get("study-baseline", {})
+    res = {"variants": {n: {"overrides": overrides.get(n), **quant[n]} for n in names},
+           "assumptions": assumptions, "pairs": [n for n in names if "+" in n], "baseline": "study-baseline",
+           "answers": answers(quant)}
+    res["sensitivity"] = {n: {k: quant[n][k] for k in (*HEADLINES, "fit_x_pct", "stable", "failed")} for n in names}
     write_json(out_json, res)
-    if out_fig is not None and pts:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from ..figures import save
-
-        v = np.array([p["value"] for p in pts])
-        fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))
-        ax[0].plot(v, [p.get("mu_margin", np.nan) for p in pts], "o-")
-        ax[0].set_xlabel(res["parameter"])
-        ax[0].set_ylabel("mu margin 1/peak (self-sensing)")
-        for key, lab in (("nonlinear", "nonlinear"), ("nominal_lti", "nominal LTI")):
-            a = [np.nan if not p.get("critical_amplitude_m") or p["critical_amplitude_m"].get(key) is None
-                 else p["critical_amplitude_m"][key] * 1e6 for p in pts]
-            ax[1].plot(v, a, "o-", label=lab)
-        ax[1].set_xlabel(res["parameter"])
-        ax[1].set_ylabel("critical sweep amplitude (um)")
-        ax[1].legend()
-        fig.suptitle("Parameter study")
-        fig.tight_layout()
-        save(fig, out_fig)
+    if out_fig is not None:
+        _tornado(quant, assumptions, baseline, out_fig)
     return res
+
+

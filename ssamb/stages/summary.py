@@ -1,11 +1,14 @@
-"""Stage ``summary``: ``results/summary.json``, the numbers of the paper-versus-reproduction table.
+"""Stage ``summary``: a run's ``summary.json``, the numbers of the paper-versus-reproduction table.
 
 Every value is read from a stage output; nothing is typed in. Keys (binding, ARCHITECTURE.md):
 ``fit_pct`` {x, y}; ``orders`` {plant, amplifier, selfsensing}; ``subsystem_fit_pct``;
 ``weight_fit_max_db``; ``mu`` {case: {peak, peak_hz, margin, scale_for_unity}};
 ``delevitation_s`` {nonlinear, nominal_lti, augmented_lti} (null where none);
-``iso14839_peak_sensitivity`` {x, y}; ``closeloop`` (the default data set's closeloop.json).
-Extra keys carry the detail the report needs.
+``iso14839_peak_sensitivity`` {x, y}; ``closeloop`` (the default data set's closeloop.json);
+``paper_way`` (the same keys for the paper's structure, with the assembled loop's ``stable`` and
+the computed cause of its μ peak); ``sensitivity`` (the assumption study, once it has run);
+``failed`` (stage -> reason, for a run whose stage failed). ``details`` carries what the report
+needs.
 """
 from __future__ import annotations
 
@@ -14,61 +17,114 @@ from typing import Mapping, Sequence
 
 from ..io import read_json, write_json
 
-__all__ = ["build_summary", "write_summary"]
+__all__ = ["build_summary", "write_summary", "headline"]
+
+
+class _Inputs:
+    """Reads stage JSONs; a failure marker becomes None and is recorded in ``failed``."""
+
+    def __init__(self):
+        self.failed: dict[str, str] = {}
+
+    def read(self, path: str | Path | None, what: str):
+        if path is None:
+            return None
+        obj = read_json(path)
+        if isinstance(obj, dict) and obj.get("failed"):
+            self.failed[what] = f"{obj.get('stage', what)}: {obj.get('error')}"
+            return None
+        return obj
+
+
+def _mu_entry(m: Mapping | None) -> dict | None:
+    if m is None:
+        return None
+    return {"peak": m["peak"], "peak_hz": m["peak_hz"], "margin": m["margin"],
+            "scale_for_unity": m["scale_for_unity"], **({"cause": m["cause"]} if "cause" in m else {})}
+
+
+def headline(asm, ev, unc, mu, base, val) -> dict:
+    """The binding headline keys from the stage outputs of one run (None where a stage failed)."""
+    aug = [t for t in ((val or {}).get("delevitation_s", {}).get("augmented_lti") or {}).values() if t is not None]
+    ok_unc = [u for u in unc.values() if u is not None]
+    return {
+        "fit_pct": {"x": asm["fit_pct"]["x"], "y": asm["fit_pct"]["y"]} if asm else {"x": None, "y": None},
+        "orders": {k: (v or {}).get("order") for k, v in ev.items()},
+        "subsystem_fit_pct": {k: (v or {}).get("fit_pct") for k, v in ev.items()},
+        "weight_fit_max_db": max(u["max_dev_db"] for u in ok_unc) if ok_unc else None,
+        "mu": {k: _mu_entry(m) for k, m in mu.items()},
+        "delevitation_s": {"nonlinear": val["delevitation_s"]["nonlinear"] if val else None,
+                           "nominal_lti": val["delevitation_s"]["nominal_lti"] if val else None,
+                           "augmented_lti": min(aug) if aug else None},
+        "iso14839_peak_sensitivity": {ax: base[ax]["peak_sensitivity"] if base else None for ax in ("x", "y")},
+    }
+
+
+def _details(asm, ev, unc, mu, base, val) -> dict:
+    ident = {k: {"method": v["method"], "inputs": v["inputs"], "outputs": v["outputs"],
+                 "spectral_radius": v["spectral_radius"], "paper_variant": v["paper_variant"],
+                 "mean_fit_pct": v["mean_fit_pct"], "poles_hz": v.get("poles_hz"),
+                 "methods": [{k2: m.get(k2) for k2 in ("method", "mean_fit", "spectral_radius", "error")}
+                             for m in v["methods"]]}
+             for k, v in ev.items() if v is not None}
+    return {
+        "assembly": None if asm is None else {k: asm[k] for k in (
+            "stable", "spectral_radius", "order", "paper_structure", "d2c", "fig4_fit_pct", "subsystem_orders",
+            "subsystem_inputs")},
+        "identification": ident,
+        "weights": {k: {"max_dev_db": u["max_dev_db"], "order": u["weight"]["order"], "channel": u["channel"],
+                        "unit": u["unit"], "bound_holds": u["bound_holds"], "within_tol": u["within_tol"]}
+                    for k, u in unc.items() if u is not None},
+        "mu": {k: m for k, m in mu.items() if m is not None},
+        "baseline": base,
+        "validation": val,
+    }
 
 
 def build_summary(assemble_json: str | Path, evidence_jsons: Mapping[str, str | Path],
                   uncertainty_jsons: Mapping[str, str | Path], mu_jsons: Mapping[str, str | Path],
                   baseline_json: str | Path, validation_json: str | Path,
                   closeloop_json: str | Path | None = None, sim_metas: Sequence[str | Path] = (),
-                  closeloop_all: Mapping[str, str | Path] | None = None) -> dict:
-    """Collect the stage outputs into the summary dictionary."""
-    asm = read_json(assemble_json)
-    ev = {k: read_json(v) for k, v in evidence_jsons.items()}
-    unc = {k: read_json(v) for k, v in uncertainty_jsons.items()}
-    mu = {k: read_json(v) for k, v in mu_jsons.items()}
-    base = read_json(baseline_json)
-    val = read_json(validation_json)
-    aug = [t for t in val["delevitation_s"]["augmented_lti"].values() if t is not None]
-    summary = {
-        "fit_pct": {"x": asm["fit_pct"]["x"], "y": asm["fit_pct"]["y"]},
-        "orders": {k: v["order"] for k, v in ev.items()},
-        "subsystem_fit_pct": {k: v["fit_pct"] for k, v in ev.items()},
-        "weight_fit_max_db": max(u["max_dev_db"] for u in unc.values()),
-        "mu": {k: {"peak": m["peak"], "peak_hz": m["peak_hz"], "margin": m["margin"],
-                   "scale_for_unity": m["scale_for_unity"]} for k, m in mu.items()},
-        "delevitation_s": {"nonlinear": val["delevitation_s"]["nonlinear"],
-                           "nominal_lti": val["delevitation_s"]["nominal_lti"],
-                           "augmented_lti": min(aug) if aug else None},
-        "iso14839_peak_sensitivity": {ax: base[ax]["peak_sensitivity"] for ax in ("x", "y")},
-        "closeloop": read_json(closeloop_json) if closeloop_json else None,
-        # detail for the report
-        "details": {
-            "assembly": {k: asm[k] for k in ("stable", "spectral_radius", "order", "paper_structure",
-                                             "d2c", "fig4_fit_pct", "subsystem_orders", "subsystem_inputs")},
-            "identification": {k: {"method": v["method"], "inputs": v["inputs"], "outputs": v["outputs"],
-                                   "spectral_radius": v["spectral_radius"], "paper_variant": v["paper_variant"],
-                                   "mean_fit_pct": v["mean_fit_pct"],
-                                   "methods": [{"method": m["method"], "mean_fit": m["mean_fit"],
-                                                "spectral_radius": m["spectral_radius"], "error": m["error"]} for m in v["methods"]]}
-                               for k, v in ev.items()},
-            "weights": {k: {"max_dev_db": u["max_dev_db"], "order": u["weight"]["order"],
-                            "channel": u["channel"], "unit": u["unit"], "bound_holds": u["bound_holds"],
-                            "within_tol": u["within_tol"]} for k, u in unc.items()},
-            "mu": mu,
-            "baseline": base,
-            "validation": val,
-            "closeloop_datasets": {k: read_json(v) for k, v in (closeloop_all or {}).items()},
-            "simulations": {Path(p).stem: _sim_brief(read_json(p)) for p in sim_metas},
-        },
-    }
+                  closeloop_all: Mapping[str, str | Path] | None = None, paper_json: str | Path | None = None,
+                  study_json: str | Path | None = None) -> dict:
+    """Collect one run's stage outputs (and, for the default run, the paper's-way run's summary and
+    the study) into the summary dictionary."""
+    r = _Inputs()
+    asm = r.read(assemble_json, "assemble")
+    ev = {k: r.read(v, f"identify/{k}") for k, v in evidence_jsons.items()}
+    unc = {k: r.read(v, f"uncertainty/{k}") for k, v in uncertainty_jsons.items()}
+    mu = {k: r.read(v, f"mu/{k}") for k, v in mu_jsons.items()}
+    base, val = r.read(baseline_json, "baseline"), r.read(validation_json, "validate")
+    summary = headline(asm, ev, unc, mu, base, val)
+    summary["closeloop"] = read_json(closeloop_json) if closeloop_json else None
+    if paper_json is not None:
+        summary["paper_way"] = paper_way(read_json(paper_json))
+    if study_json is not None:
+        summary["sensitivity"] = read_json(study_json).get("sensitivity")
+    summary["failed"] = r.failed
+    summary["details"] = _details(asm, ev, unc, mu, base, val)
+    summary["details"]["closeloop_datasets"] = {k: read_json(v) for k, v in (closeloop_all or {}).items()}
+    summary["details"]["simulations"] = {Path(p).stem: _sim_brief(read_json(p)) for p in sim_metas}
     return summary
 
 
+def paper_way(s: Mapping) -> dict:
+    """The ``paper_way`` entry from the paper's-way run's summary: its headline keys, the
+    assembled loop's stability and the computed cause of its self-sensing μ peak."""
+    keys = ("fit_pct", "orders", "subsystem_fit_pct", "weight_fit_max_db", "mu", "delevitation_s",
+            "iso14839_peak_sensitivity", "failed")
+    asm = (s.get("details") or {}).get("assembly") or {}
+    mu_ss = (s.get("mu") or {}).get("selfsensing") or {}
+    return {**{k: s.get(k) for k in keys}, "stable": asm.get("stable"),
+            "spectral_radius": asm.get("spectral_radius"), "mu_peak_cause": mu_ss.get("cause"),
+            "structure": asm.get("subsystem_inputs"),
+            "selection": (s.get("details") or {}).get("identification")}
+
+
 def _sim_brief(meta: Mapping) -> dict:
-    keep = ("experiment", "duration_s", "start", "delevitation_s", "config_hash",
-            "selfsensing_calibration", "equilibrium", "excitation")
-    return {k: meta.get(k) for k in keep}
+    keep = ("experiment", "duration_s", "start", "delevitation_s", "config_hash", "selfsensing_calibration",
+            "equilibrium", "excitation", "failed", "error")
+    return {k: meta.get(k) for k in keep if k in meta or k not in ("failed", "error")}
 
 
 def write_summary(out_path: str | Path, **kwargs) -> dict:

@@ -15,8 +15,8 @@ import numpy as np
 
 from ..channels import ONE, etfe_pair, signal
 from ..closed_loop import lti_initial_state, simulate_closed_loop
-from ..io import DataError, load_npz, write_json
-from ..model_io import load_model, load_statespace, save_weight
+from ..io import DataError, write_json
+from ..model_io import load_model, load_record, load_statespace, save_weight
 from ..uncertainty import measure_weight
 
 __all__ = ["run_uncertainty"]
@@ -36,7 +36,7 @@ def run_uncertainty(multisine_npz: str | Path, closed_loop_npz: str | Path, self
     ``params`` is the config section ``uncertainty``: ``tol_db``, ``max_order``,
     ``n_transient_periods``, ``k_sigma``, ``max_curvature_db_per_decade2``.
     """
-    nl, meta = load_npz(multisine_npz)
+    nl, meta = load_record(multisine_npz)
     exc = meta.get("excitation", {})
     if "lines_hz" not in exc:
         raise DataError(f"{multisine_npz}: not a multisine experiment (no lines in its meta)")

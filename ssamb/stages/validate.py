@@ -14,11 +14,16 @@ from typing import Mapping
 
 import numpy as np
 
-from ..io import load_npz, write_json
-from ..model_io import load_model, load_weight
+from ..io import write_json
+from ..model_io import load_model, load_record, load_weight
 from ..signals import sweep_frequency_at
 from ..sim.controller import pid_discrete
-from ..validation import SweepOutcome, lti_sweep, nonlinear_critical_amplitude, sweep_models
+from ..validation import (
+    SweepOutcome,
+    lti_sweep,
+    nonlinear_critical_amplitude,
+    sweep_models,
+)
 
 __all__ = ["run_validate"]
 
@@ -32,7 +37,7 @@ def run_validate(sweep_npz: str | Path, models: Mapping[str, str | Path], weight
     Delta), ``amplitude_search`` (bool), ``amplitude_max_m`` (upper end of the bisection),
     ``rel_tol``; ``sim_cfg`` is the simulator config including ``experiments.<experiment>``.
     """
-    nl, meta = load_npz(sweep_npz)
+    nl, meta = load_record(sweep_npz)
     exc = meta["excitation"]
     law = (float(exc["f_start_hz"]), float(exc["f_stop_hz"]), float(exc["sweep_duration_s"]), exc.get("law", "linear"))
 

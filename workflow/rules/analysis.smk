@@ -1,42 +1,28 @@
-# The paper's analysis chain: identify -> assemble -> uncertainty -> mu -> validate.
-# Each rule calls one ssamb function (see the scripts); config values arrive via params.
-
-SUBSYSTEMS = ["plant", "amplifier", "selfsensing"]
-MU_CASES = list(config["mu"]["cases"])
+# The paper's analysis chain: identify -> assemble -> uncertainty -> mu -> validate, per run.
+# Each rule calls one ssamb.stages function (see the scripts); config values arrive via params.
 
 
-def exp_file(key_path):
-    """results/sim/<experiment>.npz for the experiment named at a dotted config key."""
-    node = config
-    for k in key_path.split("."):
-        node = node[k]
-    return f"results/sim/{node}.npz"
-
-
-def pid_config(wildcards=None):
-    """What the discrete PID needs (Table 1 gains, controller rate and derivative filter)."""
-    return section("table1", "controller")
+def mu_cases(run):
+    return list(RUN_CONFIGS[run]["mu"]["cases"])
 
 
 rule identify:
     """SIPPY model of one subsystem (paper section 3): method comparison, order scan, paper variant."""
     input:
-        est=exp_file("identification.estimation"),
-        val=exp_file("identification.validation"),
+        est=lambda wc: sim_file(wc.run, cfg_of(wc)["identification"]["estimation"]),
+        val=lambda wc: sim_file(wc.run, cfg_of(wc)["identification"]["validation"]),
     output:
-        model="results/ident/{subsystem}.npz",
-        evidence="results/ident/{subsystem}_evidence.json",
-        paper_variant="results/ident/{subsystem}_paper.npz",
-        fig_orders="results/ident/{subsystem}_orders.png",
-        fig_validation="results/ident/{subsystem}_validation.png",
+        model="results/{run}ident/{subsystem}.npz",
+        evidence="results/{run}ident/{subsystem}_evidence.json",
+        paper_variant="results/{run}ident/{subsystem}_paper.npz",
+        fig_orders="results/{run}ident/{subsystem}_orders.png",
+        fig_validation="results/{run}ident/{subsystem}_validation.png",
     params:
-        identification=lambda wc: section("identification")["identification"],
+        identification=lambda wc: cfg_of(wc)["identification"],
     log:
-        "results/logs/identify/{subsystem}.log",
+        "results/{run}logs/identify/{subsystem}.log",
     benchmark:
-        "results/benchmarks/identify/{subsystem}.tsv"
-    wildcard_constraints:
-        subsystem="plant|amplifier|selfsensing",
+        "results/{run}benchmarks/identify/{subsystem}.tsv"
     threads: 1
     resources:
         mem_mb=4000,
@@ -46,22 +32,22 @@ rule identify:
 
 
 rule assemble:
-    """Closed-loop LTI model (Fig. 3), its continuous equivalent and the Fig. 4 comparison."""
+    """Closed-loop LTI model (Fig. 3), its stability, the d2c error and the Fig. 4 comparison."""
     input:
-        models=expand("results/ident/{subsystem}.npz", subsystem=SUBSYSTEMS),
-        paper=expand("results/ident/{subsystem}_paper.npz", subsystem=SUBSYSTEMS),
-        fig4=exp_file("assembly.fig4"),
+        models=lambda wc: model_files(wc.run),
+        paper=lambda wc: model_files(wc.run, "_paper"),
+        fig4=lambda wc: sim_file(wc.run, cfg_of(wc)["assembly"]["fig4"]),
     output:
-        discrete="results/model/closed_loop.npz",
-        json="results/model/assemble.json",
-        fig="results/model/fig4.png",
+        discrete="results/{run}model/closed_loop.npz",
+        json="results/{run}model/assemble.json",
+        fig="results/{run}model/fig4.png",
     params:
-        pid=pid_config,
-        assembly=lambda wc: section("assembly")["assembly"],
+        pid=section("table1", "controller"),
+        assembly=lambda wc: cfg_of(wc)["assembly"],
     log:
-        "results/logs/assemble.log",
+        "results/{run}logs/assemble.log",
     benchmark:
-        "results/benchmarks/assemble.tsv"
+        "results/{run}benchmarks/assemble.tsv"
     resources:
         mem_mb=2000,
         runtime=10,
@@ -72,21 +58,19 @@ rule assemble:
 rule uncertainty:
     """ETFE of the additive mismatch of one subsystem and its weight W(s) (paper section 5, Fig. 7)."""
     input:
-        multisine=exp_file("uncertainty.experiment"),
-        closed_loop="results/model/closed_loop.npz",
-        selfsensing="results/ident/selfsensing.npz",
+        multisine=lambda wc: sim_file(wc.run, cfg_of(wc)["uncertainty"]["experiment"]),
+        closed_loop=lambda wc: out("assemble", wc.run, "model/closed_loop.npz"),
+        selfsensing=lambda wc: out("identify", wc.run, "ident/selfsensing.npz", subsystem="selfsensing"),
     output:
-        weight="results/uncertainty/{subsystem}_weight.npz",
-        json="results/uncertainty/{subsystem}.json",
-        fig="results/uncertainty/{subsystem}_fig7.png",
+        weight="results/{run}uncertainty/{subsystem}_weight.npz",
+        json="results/{run}uncertainty/{subsystem}.json",
+        fig="results/{run}uncertainty/{subsystem}_fig7.png",
     params:
-        uncertainty=lambda wc: section("uncertainty")["uncertainty"],
+        uncertainty=lambda wc: cfg_of(wc)["uncertainty"],
     log:
-        "results/logs/uncertainty/{subsystem}.log",
+        "results/{run}logs/uncertainty/{subsystem}.log",
     benchmark:
-        "results/benchmarks/uncertainty/{subsystem}.tsv"
-    wildcard_constraints:
-        subsystem="plant|amplifier|selfsensing",
+        "results/{run}benchmarks/uncertainty/{subsystem}.tsv"
     resources:
         mem_mb=2000,
         runtime=10,
@@ -94,31 +78,28 @@ rule uncertainty:
         "../scripts/uncertainty.py"
 
 
-def mu_weights(wildcards):
-    subs = SUBSYSTEMS if wildcards.case == "all" else [wildcards.case]
-    return {f"w_{s}": f"results/uncertainty/{s}_weight.npz" for s in subs}
+def mu_inputs(wc):
+    subs = SUBSYSTEMS if wc.case == "all" else (wc.case,)
+    files = dict(zip(("plant_model", "amplifier_model", "selfsensing_model"), model_files(wc.run)))
+    files.update({f"w_{s}": weight_file(wc.run, s) for s in subs})
+    return files
 
 
 rule mu:
     """Structured singular value over frequency for one uncertainty case (paper section 4, Fig. 8)."""
     input:
-        unpack(mu_weights),
-        plant_model="results/ident/plant.npz",
-        amplifier_model="results/ident/amplifier.npz",
-        selfsensing_model="results/ident/selfsensing.npz",
+        unpack(mu_inputs),
     output:
-        json="results/mu/{case}.json",
-        curve="results/mu/{case}_curve.npz",
-        fig="results/mu/{case}_fig8.png",
+        json="results/{run}mu/{case}.json",
+        curve="results/{run}mu/{case}_curve.npz",
+        fig="results/{run}mu/{case}_fig8.png",
     params:
-        pid=pid_config,
-        mu=lambda wc: section("mu")["mu"],
+        pid=section("table1", "controller"),
+        mu=lambda wc: cfg_of(wc)["mu"],
     log:
-        "results/logs/mu/{case}.log",
+        "results/{run}logs/mu/{case}.log",
     benchmark:
-        "results/benchmarks/mu/{case}.tsv"
-    wildcard_constraints:
-        case="selfsensing|amplifier|plant|all",
+        "results/{run}benchmarks/mu/{case}.tsv"
     resources:
         mem_mb=2000,
         runtime=10,
@@ -129,16 +110,16 @@ rule mu:
 rule baseline:
     """ISO 14839-3 peak sensitivity per axis and classical margins (the baseline the paper argues against)."""
     input:
-        models=expand("results/ident/{subsystem}.npz", subsystem=SUBSYSTEMS),
+        models=lambda wc: model_files(wc.run),
     output:
-        json="results/mu/baseline.json",
+        json="results/{run}mu/baseline.json",
     params:
-        pid=pid_config,
-        mu=lambda wc: section("mu")["mu"],
+        pid=section("table1", "controller"),
+        mu=lambda wc: cfg_of(wc)["mu"],
     log:
-        "results/logs/baseline.log",
+        "results/{run}logs/baseline.log",
     benchmark:
-        "results/benchmarks/baseline.tsv"
+        "results/{run}benchmarks/baseline.tsv"
     script:
         "../scripts/baseline.py"
 
@@ -146,19 +127,19 @@ rule baseline:
 rule validate:
     """Augmented models and the delevitation sweep (paper section 6, Fig. 9)."""
     input:
-        sweep="results/sim/sweep.npz",
-        models=expand("results/ident/{subsystem}.npz", subsystem=SUBSYSTEMS),
-        weight=lambda wc: f"results/uncertainty/{config['validation']['weight']}_weight.npz",
+        sweep=lambda wc: sim_file(wc.run, "sweep"),
+        models=lambda wc: model_files(wc.run),
+        weight=lambda wc: weight_file(wc.run, cfg_of(wc)["validation"]["weight"]),
     output:
-        json="results/validation/sweep.json",
-        fig="results/validation/fig9.png",
+        json="results/{run}validation/sweep.json",
+        fig="results/{run}validation/fig9.png",
     params:
-        sim=lambda wc: {**sim_config(), "experiments": {"sweep": config["experiments"]["sweep"]}},
-        validation=lambda wc: section("validation")["validation"],
+        sim=lambda wc: _sim_config(cfg_of(wc), "sweep"),
+        validation=lambda wc: cfg_of(wc)["validation"],
     log:
-        "results/logs/validate.log",
+        "results/{run}logs/validate.log",
     benchmark:
-        "results/benchmarks/validate.tsv"
+        "results/{run}benchmarks/validate.tsv"
     resources:
         mem_mb=2000,
         runtime=20,

@@ -1,9 +1,7 @@
-# Close the loop with measured data (issue 6): every data set named in config closeloop.datasets
-# is replayed through the nominal model, its residual analysed, and the library effects that
-# explain it fitted (ssamb.closeloop.run_closeloop). The physics sections and the analysis
-# settings reach the job through params, so a changed value reruns exactly these jobs.
-import copy
-
+# Close the loop with measured data: every data set named in config closeloop.datasets is
+# replayed through the nominal model of the default run, its residual analysed, and the library
+# effects that explain it fitted (ssamb.closeloop.run_closeloop). The physics sections and the
+# analysis settings reach the job through params, so a changed value reruns exactly these jobs.
 CLOSELOOP = config.get("closeloop", {})
 CLOSELOOP_DATASETS = list(CLOSELOOP.get("datasets", {}))
 CLOSELOOP_DEFAULT = CLOSELOOP.get("default_dataset")
@@ -15,8 +13,8 @@ CLOSELOOP_FIGURES = ["residual_time.png", "residual_spectra.png", "evidence.png"
 
 def closeloop_config(wildcards):
     """Physics of the nominal model plus the analysis settings (not the data set list)."""
-    cfg = sim_config()
-    cfg["closeloop"] = {k: copy.deepcopy(v) for k, v in CLOSELOOP.items() if k not in ("datasets", "default_dataset")}
+    cfg = _sim_config(config)
+    cfg["closeloop"] = {k: v for k, v in CLOSELOOP.items() if k not in ("datasets", "default_dataset")}
     return cfg
 
 

@@ -1,8 +1,15 @@
 # Helpers shared by the rule files. The config is validated here, at parse time, so that a bad
 # value stops the workflow with the schema message before any job runs.
-import copy
-
+#
+# Runs (ssamb.scenarios): the default run writes to results/, every named scenario (config
+# `scenarios`) and every variant of the assumption study (config `study`) to
+# results/runs/<name>/. Every rule's paths carry the run prefix as the wildcard {run} ("" or
+# "runs/<name>/"); a rule reads its config values from RUN_CONFIGS[wildcards.run], and every input
+# points at the run that owns it (PLAN.owner), so a stage whose inputs do not change between
+# runs is computed once.
+from ssamb.channels import SUBSYSTEMS
 from ssamb.config import ConfigError, validate_config
+from ssamb.scenarios import Plan, run_configs, run_prefix, sim_config as _sim_config, study_variants
 
 try:
     validate_config(config)
@@ -10,28 +17,57 @@ try:
                 if k not in config]
     if _missing:
         raise ConfigError("; ".join(f"config key '{k}': missing (required by the workflow)" for k in _missing))
+    RUN_CONFIGS = run_configs(config)
+    for _run, _cfg in RUN_CONFIGS.items():
+        try:
+            validate_config(_cfg)
+        except ConfigError as _err:
+            raise ConfigError(f"run '{_run or 'default'}': {_err}") from None
 except ConfigError as _err:
     raise WorkflowError(f"config.yaml: {_err}") from None
 
-#: config sections the nonlinear simulator depends on (all physics, no analysis settings)
-SIM_SECTIONS = ["seed", "table1", "geometry", "gravity_m_per_s2", "magnetics", "amplifier",
-                "controller", "selfsensing", "sensors", "simulation"]
-
-#: experiments simulated by default (all that the config defines)
+PLAN = Plan(RUN_CONFIGS)
+#: run prefixes of the named scenarios and of the study
+SCENARIO_RUNS = [run_prefix(n) for n in (config.get("scenarios") or {})]
+STUDY_RUNS = [run_prefix(n) for n in study_variants(config)]
+#: experiments of the default run
 SIM_EXPERIMENTS = list(config["experiments"])
 
 
-def sim_config(wildcards=None):
-    """The physics part of the config plus only the experiment this job runs."""
-    out = {k: copy.deepcopy(config[k]) for k in SIM_SECTIONS}
-    exps = config["experiments"]
-    if wildcards is not None and "experiment" in wildcards.keys():
-        out["experiments"] = {wildcards.experiment: copy.deepcopy(exps[wildcards.experiment])}
-    else:
-        out["experiments"] = copy.deepcopy(exps)
-    return out
+wildcard_constraints:
+    run="(runs/[A-Za-z0-9_.=+-]+/)?",
+    experiment="[A-Za-z0-9_]+",
+    subsystem="plant|amplifier|selfsensing",
+    case="selfsensing|amplifier|plant|all",
+
+
+def cfg_of(wc):
+    """The config of the job's run."""
+    return RUN_CONFIGS[wc.run]
+
+
+def sim_config(wc):
+    """Params: the physics of the job's run plus only its experiment."""
+    return _sim_config(cfg_of(wc), wc.experiment if "experiment" in wc.keys() else None)
 
 
 def section(*keys):
-    """Params helper: the named config sections (a dict), for rules that use whole sections."""
-    return {k: copy.deepcopy(config[k]) for k in keys}
+    """Params helper: the named config sections of the job's run."""
+    return lambda wc: {k: cfg_of(wc)[k] for k in keys}
+
+
+def out(stage, run, path, **wc):
+    """results/<owner prefix><path>: the file ``run`` reads for ``stage`` (its owner's)."""
+    return f"results/{PLAN.owner(stage, run, **wc)}{path}"
+
+
+def sim_file(run, experiment):
+    return out("simulate", run, f"sim/{experiment}.npz", experiment=experiment)
+
+
+def model_files(run, suffix=""):
+    return [out("identify", run, f"ident/{s}{suffix}.npz", subsystem=s) for s in SUBSYSTEMS]
+
+
+def weight_file(run, subsystem):
+    return out("uncertainty", run, f"uncertainty/{subsystem}_weight.npz", subsystem=subsystem)

@@ -1,53 +1,92 @@
-# summary.json (the paper-versus-reproduction numbers) and the HTML report.
+# summary.json per run (the paper-versus-reproduction numbers) and the HTML report.
+import os
+
+
+def needed_weights(run):
+    """Subsystems whose weight a run's summary needs: those of its mu cases and the validation's."""
+    cfg = RUN_CONFIGS[run]
+    subs = {s for c in cfg["mu"]["cases"] for s in (SUBSYSTEMS if c == "all" else (c,))}
+    return [s for s in SUBSYSTEMS if s in subs or s == cfg["validation"]["weight"]]
+
+
+def run_experiments(run):
+    """Experiments whose simulation meta a run's summary lists (all of them for the default run)."""
+    cfg = RUN_CONFIGS[run]
+    if not run:
+        return list(cfg["experiments"])
+    keys = ("identification.estimation", "identification.validation", "assembly.fig4", "uncertainty.experiment")
+    names = [cfg[k.split(".")[0]][k.split(".")[1]] for k in keys] + ["sweep"]
+    return list(dict.fromkeys(names))
+
+
+def summary_inputs(wc):
+    run = wc.run
+    files = {
+        "assemble": out("assemble", run, "model/assemble.json"),
+        "evidence": [out("identify", run, f"ident/{s}_evidence.json", subsystem=s) for s in SUBSYSTEMS],
+        "uncertainty": [out("uncertainty", run, f"uncertainty/{s}.json", subsystem=s) for s in needed_weights(run)],
+        "mu": [out("mu", run, f"mu/{c}.json", case=c) for c in mu_cases(run)],
+        "baseline": out("baseline", run, "mu/baseline.json"),
+        "validation": out("validate", run, "validation/sweep.json"),
+        "sims": [sim_file(run, e).replace(".npz", ".json") for e in run_experiments(run)],
+    }
+    if not run:
+        files["closeloop"] = expand("results/closeloop/{dataset}/closeloop.json", dataset=CLOSELOOP_DATASETS)
+        if "runs/paper/" in SCENARIO_RUNS:
+            files["paper"] = "results/runs/paper/summary.json"
+        if os.path.exists("results/study/study.json"):  # optional: after `snakemake study`
+            files["study"] = "results/study/study.json"
+    return files
 
 
 rule summary:
-    """Collect every stage's numbers into results/summary.json."""
+    """Collect every stage's numbers of one run into its summary.json."""
     input:
-        assemble="results/model/assemble.json",
-        evidence=expand("results/ident/{subsystem}_evidence.json", subsystem=SUBSYSTEMS),
-        uncertainty=expand("results/uncertainty/{subsystem}.json", subsystem=SUBSYSTEMS),
-        mu=expand("results/mu/{case}.json", case=MU_CASES),
-        baseline="results/mu/baseline.json",
-        validation="results/validation/sweep.json",
-        closeloop=expand("results/closeloop/{dataset}/closeloop.json", dataset=CLOSELOOP_DATASETS),
-        sims=expand("results/sim/{experiment}.json", experiment=SIM_EXPERIMENTS),
+        unpack(summary_inputs),
     output:
-        "results/summary.json",
+        "results/{run}summary.json",
     params:
-        default_dataset=CLOSELOOP_DEFAULT,
+        default_dataset=lambda wc: CLOSELOOP_DEFAULT if not wc.run else None,
     log:
-        "results/logs/summary.log",
+        "results/{run}logs/summary.log",
     benchmark:
-        "results/benchmarks/summary.tsv"
+        "results/{run}benchmarks/summary.tsv"
     script:
         "../scripts/summary.py"
 
 
+def report_inputs(wc):
+    files = {"summary": "results/summary.json", "config_file": workflow.configfiles[0] if workflow.configfiles else "config.yaml",
+             "figures": [f"results/{p}" for p in REPORT_FIGURES]}
+    if wc.which:
+        files["study"] = "results/study/study.json"
+    return files
+
+
+#: stage figures the report shows (default run)
+REPORT_FIGURES = (["model/fig4.png", "validation/fig9.png", "sim/levitate.npz"]
+                  + [f"uncertainty/{s}_fig7.png" for s in SUBSYSTEMS]
+                  + [f"mu/{c}_fig8.png" for c in config["mu"]["cases"]]
+                  + [f"ident/{s}_{k}.png" for s in SUBSYSTEMS for k in ("orders", "validation")]
+                  + [f"sim/{config['uncertainty']['experiment']}.npz"])
+
+
 rule report:
-    """Build the notebook from results/, execute it and render results/report.html (nbconvert)."""
+    """Build the notebook from results/, execute it and render the HTML report (nbconvert);
+    results/study/report.html also holds the assumption study."""
     input:
-        summary="results/summary.json",
-        figures=[
-            "results/model/fig4.png",
-            "results/validation/fig9.png",
-            *expand("results/uncertainty/{subsystem}_fig7.png", subsystem=SUBSYSTEMS),
-            *expand("results/mu/{case}_fig8.png", case=MU_CASES),
-            *expand("results/ident/{subsystem}_{kind}.png", subsystem=SUBSYSTEMS, kind=["orders", "validation"]),
-            "results/sim/levitate.npz",
-            "results/sim/multisine.npz",
-        ],
-        config_file="config.yaml",
-        study="results/study/study.json",
+        unpack(report_inputs),
     output:
-        html="results/report.html",
-        notebook="results/report.ipynb",
+        html="results/{which}report.html",
+        notebook="results/{which}report.ipynb",
     params:
         closeloop_dir=(f"results/closeloop/{CLOSELOOP_DEFAULT}" if CLOSELOOP_DEFAULT else None),
     log:
-        "results/logs/report.log",
+        "results/{which}logs/report.log",
     benchmark:
-        "results/benchmarks/report.tsv"
+        "results/{which}benchmarks/report.tsv"
+    wildcard_constraints:
+        which="(study/)?",
     resources:
         mem_mb=3000,
         runtime=15,

@@ -1,46 +1,29 @@
-# Parameter study: the mu margin and the delevitation amplitude over one parameter
-# (config study.parameter, one job per value in study.values).
-
-STUDY = config.get("study", {"parameter": None, "values": []})
-STUDY_VALUES = [f"{float(v):g}" for v in STUDY["values"]]
-
-
-def study_config(wildcards=None):
-    """Everything the chain needs (physics, experiments, analysis settings), not the data sets."""
-    return section(*SIM_SECTIONS, "experiments", "identification", "assembly", "uncertainty", "mu", "validation")
+# The assumption study (config `study`): every open modelling choice varied one at a time over its
+# plausible values, and the strongest in pairs. Each variant is a run (results/runs/study-*/) of
+# the same rules, so each of its stages is its own job; stages whose inputs a variant does not
+# change are shared (ssamb.scenarios.Plan). Target: `snakemake --cores 2 study`.
 
 
-rule study_point:
-    """The analysis chain for one value of the study parameter (ssamb.stages.study.run_study_point)."""
+rule study_collect:
+    """Gather the variants' headline numbers: results/study/study.json, tornado charts, table."""
+    input:
+        summaries=[f"results/{r}summary.json" for r in STUDY_RUNS],
     output:
-        "results/study/point_{value}.json",
+        json="results/study/study.json",
+        fig="results/study/tornado.png",
     params:
-        cfg=study_config,
-        parameter=STUDY["parameter"],
+        study=config.get("study", {}),
+        runs=STUDY_RUNS,
     log:
-        "results/logs/study/{value}.log",
+        "results/study/logs/collect.log",
     benchmark:
-        "results/benchmarks/study/{value}.tsv"
-    wildcard_constraints:
-        value="[-+0-9.eE]+",
-    threads: 1
-    resources:
-        mem_mb=4000,
-        runtime=30,
+        "results/study/benchmarks/collect.tsv"
     script:
-        "../scripts/study_point.py"
+        "../scripts/study.py"
 
 
 rule study:
-    """Gather the study points into results/study/study.json and a figure."""
+    """The assumption study and the report that holds it (results/study/report.html)."""
     input:
-        expand("results/study/point_{value}.json", value=STUDY_VALUES),
-    output:
-        json="results/study/study.json",
-        fig="results/study/study.png",
-    log:
-        "results/logs/study/collect.log",
-    benchmark:
-        "results/benchmarks/study/collect.tsv"
-    script:
-        "../scripts/study.py"
+        "results/study/study.json",
+        "results/study/report.html",

@@ -1,12 +1,13 @@
-"""Snakemake script: identify one subsystem (ssamb.stages.identify.run_identify)."""
+"""Snakemake script: identify one subsystem (ssamb.stages.identify.run_identify); a failure in a scenario or study run is
+recorded in its outputs (ssamb.stages.run_guarded)."""
 import sys
 from pathlib import Path
 
+from ssamb.stages import run_guarded
 from ssamb.stages.identify import run_identify
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log
-    out = snakemake.output  # noqa: F821
-    run_identify(snakemake.input.est, snakemake.input.val, snakemake.wildcards.subsystem,  # noqa: F821
-                 snakemake.params.identification, out.model, out.evidence,  # noqa: F821
-                 out_variant=out.paper_variant, fig_dir=Path(out.fig_orders).parent)
+    inp, out, wc, par = snakemake.input, snakemake.output, snakemake.wildcards, snakemake.params  # noqa: F821
+    run_guarded("identify", out, run_identify, inp.est, inp.val, wc.subsystem, par.identification, out.model,
+                out.evidence, out_variant=out.paper_variant, fig_dir=Path(out.fig_orders).parent, tolerate=bool(wc.run))

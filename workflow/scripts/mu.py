@@ -1,12 +1,14 @@
-"""Snakemake script: mu for one uncertainty case (ssamb.stages.mu.run_mu)."""
+"""Snakemake script: mu for one uncertainty case (ssamb.stages.mu.run_mu); a failure in a scenario or study run is
+recorded in its outputs (ssamb.stages.run_guarded)."""
 import sys
 
+from ssamb.stages import run_guarded
 from ssamb.stages.mu import run_mu
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log
-    inp, out = snakemake.input, snakemake.output  # noqa: F821
+    inp, out, wc, par = snakemake.input, snakemake.output, snakemake.wildcards, snakemake.params  # noqa: F821
     models = {"plant": inp.plant_model, "amplifier": inp.amplifier_model, "selfsensing": inp.selfsensing_model}
     weights = {k[2:]: inp[k] for k in inp.keys() if k.startswith("w_")}
-    run_mu(models, weights, snakemake.wildcards.case, snakemake.params.pid, snakemake.params.mu,  # noqa: F821
-           out.json, out.curve, out.fig)
+    run_guarded("mu", out, run_mu, models, weights, wc.case, par.pid, par.mu, out.json, out.curve, out.fig,
+                tolerate=bool(wc.run))

@@ -6,6 +6,7 @@ from ssamb.report import build_report
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log
-    build_report(Path(snakemake.input.summary).parent, snakemake.output.html,  # noqa: F821
-                 out_ipynb=snakemake.output.notebook, config_path=snakemake.input.config_file,  # noqa: F821
-                 closeloop_dir=snakemake.params.closeloop_dir)  # noqa: F821
+    inp = snakemake.input  # noqa: F821
+    build_report(Path(inp.summary).parent, snakemake.output.html, out_ipynb=snakemake.output.notebook,  # noqa: F821
+                 config_path=inp.config_file, closeloop_dir=snakemake.params.closeloop_dir,  # noqa: F821
+                 study_json=inp.get("study"))

@@ -1,4 +1,4 @@
-"""Snakemake script: results/summary.json (ssamb.stages.summary.write_summary)."""
+"""Snakemake script: a run's summary.json (ssamb.stages.summary.write_summary)."""
 import sys
 from pathlib import Path
 
@@ -7,8 +7,7 @@ from ssamb.stages.summary import write_summary
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log
     inp = snakemake.input  # noqa: F821
-    default = snakemake.params.default_dataset  # noqa: F821
-    cl = {Path(p).parent.name: p for p in inp.closeloop}
+    cl = {Path(p).parent.name: p for p in inp.get("closeloop", [])}
     write_summary(
         snakemake.output[0],  # noqa: F821
         assemble_json=inp.assemble,
@@ -17,7 +16,9 @@ with open(snakemake.log[0], "w") as log:  # noqa: F821
         mu_jsons={Path(p).stem: p for p in inp.mu},
         baseline_json=inp.baseline,
         validation_json=inp.validation,
-        closeloop_json=cl.get(default),
+        closeloop_json=cl.get(snakemake.params.default_dataset),  # noqa: F821
         closeloop_all=cl,
         sim_metas=list(inp.sims),
+        paper_json=inp.get("paper"),
+        study_json=inp.get("study"),
     )

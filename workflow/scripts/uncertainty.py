@@ -1,10 +1,12 @@
-"""Snakemake script: uncertainty weight of one subsystem (ssamb.stages.uncertainty.run_uncertainty)."""
+"""Snakemake script: uncertainty weight of one subsystem (ssamb.stages.uncertainty.run_uncertainty); a failure in a scenario or study run is
+recorded in its outputs (ssamb.stages.run_guarded)."""
 import sys
 
+from ssamb.stages import run_guarded
 from ssamb.stages.uncertainty import run_uncertainty
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log
-    inp, out = snakemake.input, snakemake.output  # noqa: F821
-    run_uncertainty(inp.multisine, inp.closed_loop, inp.selfsensing, snakemake.wildcards.subsystem,  # noqa: F821
-                    snakemake.params.uncertainty, out.weight, out.json, out.fig)  # noqa: F821
+    inp, out, wc, par = snakemake.input, snakemake.output, snakemake.wildcards, snakemake.params  # noqa: F821
+    run_guarded("uncertainty", out, run_uncertainty, inp.multisine, inp.closed_loop, inp.selfsensing, wc.subsystem,
+                par.uncertainty, out.weight, out.json, out.fig, tolerate=bool(wc.run))

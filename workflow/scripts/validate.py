@@ -1,12 +1,14 @@
-"""Snakemake script: sweep validation (ssamb.stages.validate.run_validate)."""
+"""Snakemake script: sweep validation (ssamb.stages.validate.run_validate); a failure in a scenario or study run is
+recorded in its outputs (ssamb.stages.run_guarded)."""
 import sys
 from pathlib import Path
 
+from ssamb.stages import run_guarded
 from ssamb.stages.validate import run_validate
 
 with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log
-    inp, out = snakemake.input, snakemake.output  # noqa: F821
+    inp, out, wc, par = snakemake.input, snakemake.output, snakemake.wildcards, snakemake.params  # noqa: F821
     models = {Path(p).stem: p for p in inp.models}
-    run_validate(inp.sweep, models, inp.weight, snakemake.params.sim, snakemake.params.validation,  # noqa: F821
-                 out.json, out.fig)
+    run_guarded("validate", out, run_validate, inp.sweep, models, inp.weight, par.sim, par.validation, out.json,
+                out.fig, tolerate=bool(wc.run))

@@ -7,11 +7,11 @@ from __future__ import annotations
 from .analysis import identification, mu, uncertainty, validation
 from .closeloop import closeloop
 from .overview import comparison, overview, parameters, provenance, simulation
-from .study import study
+from .study import paper_way, sensitivity
 
 __all__ = ["ORDER", "overview", "comparison", "parameters", "simulation", "identification", "uncertainty",
-           "mu", "validation", "closeloop", "study", "provenance"]
+           "mu", "validation", "paper_way", "sensitivity", "closeloop", "provenance"]
 
 #: names of the section functions in report order
 ORDER = ("overview", "comparison", "parameters", "simulation", "identification", "uncertainty", "mu",
-         "validation", "closeloop", "study", "provenance")
+         "validation", "paper_way", "sensitivity", "closeloop", "provenance")

@@ -1,29 +1,56 @@
-"""Report section: the parameter study (config ``study``)."""
+"""Report sections beyond the default run: the paper's way (scenario ``paper``) and the
+assumption study (``snakemake --cores 2 study``)."""
 from __future__ import annotations
 
-from ...io import read_json
 from ..context import Context
 from ..elements import Image, Section, Table
 
-__all__ = ["study"]
+__all__ = ["paper_way", "sensitivity"]
 
 
-def study(ctx: Context) -> Section:
-    """The self-sensing μ margin and the critical sweep amplitudes over one parameter."""
-    sec = Section("Parameter study").add(
-        "The self-sensing μ margin and the sweep amplitude at which the nonlinear and the nominal LTI models "
-        "delevitate, for other values of one parameter (config `study`; each value is its own workflow job).")
-    path = ctx.path("study", "study.json")
-    if not path.exists():
-        return sec.add("No parameter study in this run.")
-    st = read_json(path)
-    rows = []
-    for p in st["points"]:
-        ca, fit = p.get("critical_amplitude_m") or {}, p.get("fit_pct") or {}
-        rows.append([p["value"], p["stable"], fit.get("x"), fit.get("y"), p.get("mu_peak"), p.get("mu_peak_hz"),
-                     p.get("mu_margin"), None if ca.get("nonlinear") is None else ca["nonlinear"] * 1e6,
-                     None if ca.get("nominal_lti") is None else ca["nominal_lti"] * 1e6])
-    sec.add(f"Parameter: `{st['parameter']}`",
-            Table(["value", "LTI loop stable", "fit x (%)", "fit y (%)", "mu peak", "at (Hz)", "mu margin",
-                   "critical amplitude, nonlinear (µm)", "critical amplitude, LTI (µm)"], rows))
-    return sec.add(Image(ctx.path("study", "study.png")) if ctx.path("study", "study.png").exists() else None)
+def paper_way(ctx: Context) -> Section:
+    """The chain with the paper's structures (run ``runs/paper/``): stability, selection, μ cause."""
+    P = ctx.summary.get("paper_way")
+    sec = Section("The paper's way").add(
+        "The whole chain again with the paper's model structures wherever the paper is explicit (config "
+        "`scenarios.paper`: self-sensing from the coil current i_ypos, the 4-input amplifier, the plant on all "
+        "four currents); results in `results/runs/paper/`.")
+    if not P:
+        return sec.add("No paper's-way run in this configuration (config `scenarios.paper`).")
+    rows = [["assembled loop stable", P.get("stable")], ["spectral radius", P.get("spectral_radius")],
+            ["fit x / y (%)", f"{P['fit_pct']['x']} / {P['fit_pct']['y']}" if P.get("fit_pct") else None],
+            ["self-sensing μ peak", (P.get("mu") or {}).get("selfsensing", {}) and P["mu"]["selfsensing"]["peak"]],
+            ["its cause (computed)", (P.get("mu_peak_cause") or {}).get("summary")]]
+    rows += [[f"failed: {k}", v] for k, v in (P.get("failed") or {}).items()]
+    sel = [[k, v.get("method"), ", ".join(v.get("inputs", [])), v.get("mean_fit_pct"), v.get("spectral_radius")]
+           for k, v in (P.get("selection") or {}).items()]
+    return sec.add(Table(["quantity", "value"], rows),
+                   Table(["subsystem", "method", "inputs", "mean validation fit (%)", "spectral radius"], sel,
+                         caption="Models of the paper's way"))
+
+
+def sensitivity(ctx: Context) -> Section:
+    """The assumption study: per variant the headline numbers, the tornado charts and the
+    computed answers (which assumptions reproduce which of the paper's headlines)."""
+    sec = Section("Assumption study").add(
+        "Every open modelling choice varied one at a time over its plausible values (config `study`), each "
+        "variant a run of the whole chain; numbers relative to the study's baseline run (the config's own "
+        "values with the study's common overrides).")
+    st = ctx.study
+    if st is None:
+        return sec.add("Not in this report: `snakemake --cores 2 study` runs the study and writes "
+                       "`results/study/report.html`, which holds it.")
+    keys = ("fit_y_pct", "mu_peak_hz", "mu_scale_for_unity", "critical_nonlinear_um", "critical_lti_um",
+            "delevitation_nonlinear_s")
+    rows = [[n, v.get("stable"), *[v.get(k) for k in keys], "; ".join(f"{a}: {b}" for a, b in v["failed"].items())]
+            for n, v in st["variants"].items()]
+    ans = st["answers"]
+    text = {"delevitation": "make the nonlinear model delevitate in the sweep while the LTI models do not",
+            "mu_peak_near_2hz": "put the self-sensing μ peak within a factor 2 of the paper's ~2 Hz",
+            "fit_y_near_paper": "give a y fit within 10 points of the paper's"}
+    return sec.add(
+        Table(["variant", "LTI loop stable", "fit y (%)", "μ peak (Hz)", "μ weight scale", "critical amplitude, "
+               "nonlinear (µm)", "critical amplitude, LTI (µm)", "delevitation (s)", "failed stages"], rows),
+        Image(ctx.path("study", "tornado.png")),
+        "**Which assumptions reproduce the paper's headlines (computed over the variants):** " + " ".join(
+            f"Variants that {t}: {', '.join(f'`{n}`' for n in ans[k]) or 'none'}." for k, t in text.items()))

@@ -1,0 +1,192 @@
+r"""Variants of the chain: named scenarios and the assumption study, as config overrides, and
+the plan that shares every stage whose inputs do not change between variants.
+
+Runs
+----
+A *run* is the whole chain for one configuration. The default run writes to ``results/``;
+every other run to ``results/runs/<name>/`` (the run *prefix* ``runs/<name>/``). Runs are
+
+* the named scenarios of config ``scenarios`` (``name -> {dotted key: value}``), e.g. ``paper``;
+* the assumption study of config ``study`` (:func:`study_variants`): a ``study-baseline`` run
+  with the study's common overrides, one run per assumption value (one at a time) and one per
+  value pair of the listed assumption pairs.
+
+Sharing
+-------
+Each stage of each run has a *key*: a hash of the config it reads and of the keys of the stage
+outputs it reads (:class:`Plan`). Two runs whose keys agree for a stage share its output: the
+stage is planned once, under the first run (in the order default, scenarios, study) that has
+that key (its *owner*), and every other run reads the owner's file. So a variant that changes
+only the sweep re-simulates the sweep and re-validates, nothing else.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from typing import Any, Callable, Mapping
+
+from .channels import SUBSYSTEMS
+from .config import ConfigError, apply_overrides, get
+
+__all__ = ["SIM_SECTIONS", "sim_config", "study_variants", "run_overrides", "run_configs", "Plan",
+           "CHAIN", "run_prefix"]
+
+#: config sections the nonlinear simulator depends on (all physics, no analysis settings)
+SIM_SECTIONS = ("seed", "table1", "geometry", "gravity_m_per_s2", "magnetics", "amplifier", "controller",
+                "selfsensing", "sensors", "simulation")
+
+_NAME = re.compile(r"^[A-Za-z0-9_.=+-]+$")
+
+
+def sim_config(cfg: Mapping, experiment: str | None = None) -> dict:
+    """The physics part of ``cfg`` plus only the named experiment (or all experiments)."""
+    out = {k: cfg[k] for k in SIM_SECTIONS if k in cfg}
+    exps = cfg["experiments"]
+    out["experiments"] = {experiment: exps[experiment]} if experiment is not None else dict(exps)
+    return json.loads(json.dumps(out))  # a deep copy made of plain containers
+
+
+def _label(value: Any) -> str:
+    """A file-name-safe label of a study value."""
+    text = json.dumps(value, sort_keys=True) if isinstance(value, (dict, list)) else str(value)
+    return re.sub(r"[^A-Za-z0-9_.+-]", "", text.replace(" ", ""))[:40] or "value"
+
+
+def _assumption_values(name: str, spec: Mapping) -> dict[str, dict]:
+    """``label -> overrides`` of one study assumption: each value is a scalar for ``key`` or a
+    mapping ``{label, overrides}`` (several keys at once)."""
+    out = {}
+    for v in spec["values"]:
+        if isinstance(v, Mapping):
+            out[str(v["label"])] = dict(v["overrides"])
+        else:
+            out[_label(v)] = {spec["key"]: v}
+    return out
+
+
+def study_variants(config: Mapping) -> dict[str, dict]:
+    """``run name -> overrides`` of the assumption study (config ``study``): ``study-baseline``
+    (the study's common ``overrides`` only), ``study-<assumption>=<label>`` one at a time, and
+    ``study-<a>=<la>+<b>=<lb>`` for every value pair of each listed pair of assumptions."""
+    st = config.get("study") or {}
+    base = dict(st.get("overrides") or {})
+    values = {a: _assumption_values(a, spec) for a, spec in (st.get("assumptions") or {}).items()}
+    out = {"study-baseline": base}
+    for a, vals in values.items():
+        for lab, ov in vals.items():
+            out[f"study-{a}={lab}"] = {**base, **ov}
+    for a, b in st.get("pairs") or []:
+        for la, oa in values[a].items():
+            for lb, ob in values[b].items():
+                out[f"study-{a}={la}+{b}={lb}"] = {**base, **oa, **ob}
+    return out
+
+
+def run_overrides(config: Mapping, study: bool = True) -> dict[str, dict]:
+    """``run name -> overrides`` of every run: ``""`` (default), the scenarios, the study."""
+    runs = {"": {}}
+    runs.update({str(k): dict(v or {}) for k, v in (config.get("scenarios") or {}).items()})
+    if study:
+        runs.update(study_variants(config))
+    bad = [n for n in runs if n and not _NAME.match(n)]
+    if bad:
+        raise ConfigError(f"run names {bad}: use letters, digits and _.=+- only")
+    return runs
+
+
+def run_prefix(name: str) -> str:
+    """The results sub-folder of a run: ``''`` for the default, ``'runs/<name>/'`` otherwise."""
+    return f"runs/{name}/" if name else ""
+
+
+def run_configs(config: Mapping, study: bool = True) -> dict[str, dict]:
+    """``run prefix -> config`` of every run (each override must name an existing key)."""
+    out = {}
+    for name, ov in run_overrides(config, study).items():
+        try:
+            out[run_prefix(name)] = apply_overrides(config, ov)
+        except ConfigError as exc:
+            raise ConfigError(f"run '{name or 'default'}': {exc}") from None
+    return out
+
+
+def _canonical(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+
+
+class Plan:
+    """Stage keys and owners over the runs (module docstring, "Sharing").
+
+    Parameters
+    ----------
+    runs : mapping
+        ``run prefix -> config`` (:func:`run_configs`).
+    chain : mapping
+        ``stage -> f(cfg, **wildcards) -> (own, upstream)``: what the stage reads from the config
+        (any JSON-able value) and the stage outputs it reads, as ``(stage, wildcards)`` pairs.
+    """
+
+    def __init__(self, runs: Mapping[str, Mapping], chain: Mapping[str, Callable] | None = None):
+        self.runs = dict(runs)
+        self.chain = dict(CHAIN if chain is None else chain)
+        self._keys: dict = {}
+        self._owners: dict = {}
+
+    def key(self, stage: str, run: str, **wc) -> str:
+        """Hash of the stage's own config and its inputs' keys in ``run``."""
+        memo = (stage, run, tuple(sorted(wc.items())))
+        if memo not in self._keys:
+            own, upstream = self.chain[stage](self.runs[run], **wc)
+            ups = [self.key(s, run, **w) for s, w in upstream]
+            blob = _canonical([stage, sorted(wc.items()), own, ups]).encode()
+            self._keys[memo] = hashlib.sha256(blob).hexdigest()[:16]
+        return self._keys[memo]
+
+    def owner(self, stage: str, run: str, **wc) -> str:
+        """The first run (default, scenarios, study) with the same key: whose file ``run`` reads."""
+        memo = (stage, run, tuple(sorted(wc.items())))
+        if memo not in self._owners:
+            k = self.key(stage, run, **wc)
+            self._owners[memo] = next(r for r in self.runs if self.key(stage, r, **wc) == k)
+        return self._owners[memo]
+
+
+# ------------------------------------------------------------------ the chain's data flow
+def _exp(cfg, dotted: str) -> str:
+    return get(cfg, dotted)
+
+
+def _pid(cfg) -> dict:
+    return {"table1": cfg["table1"], "controller": cfg["controller"]}
+
+
+def _identified(cfg) -> list:
+    return [("identify", {"subsystem": s}) for s in SUBSYSTEMS]
+
+
+def _mu_grid(cfg) -> dict:
+    """What a mu job reads of the mu section: the grid (the list of cases selects jobs)."""
+    return {k: v for k, v in cfg["mu"].items() if k != "cases"}
+
+
+def _mu_subsystems(case: str) -> tuple:
+    return SUBSYSTEMS if case == "all" else (case,)
+
+
+#: stage -> (own config, upstream stage outputs) -- the arrows of the data flow
+CHAIN: dict[str, Callable] = {
+    "simulate": lambda cfg, experiment: (sim_config(cfg, experiment), []),
+    "identify": lambda cfg, subsystem: (cfg["identification"], [
+        ("simulate", {"experiment": _exp(cfg, "identification.estimation")}),
+        ("simulate", {"experiment": _exp(cfg, "identification.validation")})]),
+    "assemble": lambda cfg: ([cfg["assembly"], _pid(cfg)],
+                             _identified(cfg) + [("simulate", {"experiment": _exp(cfg, "assembly.fig4")})]),
+    "uncertainty": lambda cfg, subsystem: (cfg["uncertainty"], [
+        ("assemble", {}), ("simulate", {"experiment": _exp(cfg, "uncertainty.experiment")})]),
+    "mu": lambda cfg, case: ([_mu_grid(cfg), _pid(cfg)], _identified(cfg) + [
+        ("uncertainty", {"subsystem": s}) for s in _mu_subsystems(case)]),
+    "baseline": lambda cfg: ([_mu_grid(cfg), _pid(cfg)], _identified(cfg)),
+    "validate": lambda cfg: ([cfg["validation"], sim_config(cfg, "sweep")], _identified(cfg) + [
+        ("simulate", {"experiment": "sweep"}), ("uncertainty", {"subsystem": cfg["validation"]["weight"]})]),
+}
