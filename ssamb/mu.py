@@ -675,22 +675,11 @@ def _align(kinds, offs, sizes, a, l, forward):
             for i in range(o, o + r):
                 na += a[i].real * a[i].real + a[i].imag * a[i].imag
                 nl += l[i].real * l[i].real + l[i].imag * l[i].imag
-            na = np.sqrt(na)
-            nl = np.sqrt(nl)
-            if forward:
-                if nl > 1e-300:
-                    for i in range(o, o + r):
-                        out[i] = (na / nl) * l[i]
-                else:
-                    for i in range(o, o + r):
-                        out[i] = a[i]
-            else:
-                if na > 1e-300:
-                    for i in range(o, o + r):
-                        out[i] = (nl / na) * a[i]
-                else:
-                    for i in range(o, o + r):
-                        out[i] = l[i]
+            # forward: b = (|a|/|l|) l (else a); backward: y = (|l|/|a|) a (else l)
+            num, den = (np.sqrt(na), np.sqrt(nl)) if forward else (np.sqrt(nl), np.sqrt(na))
+            src, alt = (l, a) if forward else (a, l)
+            for i in range(o, o + r):
+                out[i] = (num / den) * src[i] if den > 1e-300 else alt[i]
         else:
             c = 0.0 + 0.0j
             for i in range(o, o + r):

@@ -411,13 +411,8 @@ def _sweep_args(f_start_hz, f_stop_hz, sweep_duration_s, law):
     return f_start_hz, f_stop_hz, sweep_duration_s
 
 
-def sweep_frequency_at(
-    t: np.ndarray | float,
-    f_start_hz: float,
-    f_stop_hz: float,
-    sweep_duration_s: float,
-    law: str = "linear",
-) -> np.ndarray | float:
+def sweep_frequency_at(t: np.ndarray | float, f_start_hz: float, f_stop_hz: float, sweep_duration_s: float,
+                       law: str = "linear") -> np.ndarray | float:
     r"""Instantaneous frequency (Hz) of :func:`sweep` at time(s) ``t`` (s).
 
     .. math:: f(t) = f_0 + (f_1 - f_0)\,\tau \quad\text{(linear)},\qquad

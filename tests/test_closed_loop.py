@@ -356,6 +356,7 @@ def _pulse_train(n, amp, seed):
 PAPER = {"plant": "none", "amplifier": "full", "selfsensing": "current"}
 
 
+@pytest.mark.slow
 def test_identify_and_assemble_a_known_linear_loop():
     from ssamb.config import load_config
     from ssamb.identification import identify, nrmse_fit, subsystem_io

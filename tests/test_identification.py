@@ -133,6 +133,7 @@ def _pole_error(est, true):
     return err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["N4SID", "PARSIM-K"])
 def test_recovers_known_mimo_system(data, method):
     u, y, uv, yv = data
@@ -146,6 +147,7 @@ def test_recovers_known_mimo_system(data, method):
     np.testing.assert_allclose(m.equilibrium(U_OP)[1], _true_equilibrium(U_OP), rtol=1e-3)
 
 
+@pytest.mark.slow
 def test_refine_improves_simulation_fit(data):
     u, y, uv, yv = data
     plain = identify(u, y, 4, "MOESP", FS, ss_f=12, ss_p=12, refine="none")
@@ -178,6 +180,7 @@ def test_operating_point_survives_in_the_affine_model(model, data):
     np.testing.assert_allclose(y_step[-1], _true_equilibrium(U_OP + [0.5, -0.2]), rtol=1e-3)
 
 
+@pytest.mark.slow
 def test_without_operating_point_the_dynamics_are_distorted(data):
     """What the paper warns against: a purely linear model of undetrended data has to bend its
     DC gain to mimic the offset at the operating point, and is wrong everywhere else."""
@@ -290,6 +293,7 @@ def test_rank_deficient_inputs_get_minimum_norm_model():
 # ---------------------------------------------------------------------------------------
 # order scan and method comparison
 # ---------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_order_scan_finds_the_true_order(data):
     u, y, uv, yv = data
     scan = order_scan(u[:3000], y[:3000], orders=range(2, 7), method="N4SID", fs_hz=FS,
@@ -303,6 +307,7 @@ def test_order_scan_finds_the_true_order(data):
     json.dumps(scan.as_dict())
 
 
+@pytest.mark.slow
 def test_compare_methods_reports_each_method(data):
     u, y, uv, yv = data
     res = compare_methods(u[:3000], y[:3000], 4, methods=("N4SID", "MOESP", "CVA", "PARSIM-K"), fs_hz=FS,

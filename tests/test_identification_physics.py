@@ -19,6 +19,8 @@ from ssamb.config import load_config
 from ssamb.identification import identify, subsystem_io
 from ssamb.sim import amb_params, simulate
 
+pytestmark = pytest.mark.slow  # simulates and identifies the plant (about 20 s)
+
 
 @pytest.fixture(scope="module")
 def plant_and_physics():

@@ -195,6 +195,7 @@ def test_pulses_bad_arguments():
         sg.pulses(FS, 0.1, 1.0, 2e-4, 4e-3, seed=None)
 
 
+@pytest.mark.slow
 def test_pulses_spectrum_matches_documented_psd():
     fs = 10_000.0
     x = sg.pulses(fs, 200.0, 0.3, 1e-3, 2e-2, seed=4)

@@ -331,6 +331,7 @@ def test_fit_weight_noisy_mismatch_with_peaks(seed, n_peaks, noise):
     _check_weight(fit, F22, g)
 
 
+@pytest.mark.slow
 def test_fit_weight_wide_band_mismatch():
     f = np.logspace(0, 3, 60)
     s = 2j * np.pi * f

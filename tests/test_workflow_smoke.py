@@ -141,3 +141,19 @@ def test_bad_config_stops_before_any_job(tmp_path):
     assert r.returncode != 0
     assert "table1.mass_kg" in (r.stdout + r.stderr)
     assert not (tmp_path / "results").exists()
+
+
+def test_slurm_profile_plans_one_job_per_stage_and_run(tmp_path):
+    """The SLURM profile: status by squeue (works without accounting), no cpus_per_task in the
+    default resources (it would override every rule's threads), and a dry run that plans every
+    stage of every run as its own job."""
+    pytest.importorskip("snakemake_executor_plugin_slurm")
+    prof = yaml.safe_load((ROOT / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
+    assert prof["slurm-status-command"] == "squeue"
+    assert "cpus_per_task" not in prof["default-resources"]
+    _copy_repo(tmp_path)
+    r = _run(tmp_path, "-n", "--profile", "workflow/profiles/slurm", "--configfile", "config.yaml", "smoke.yaml")
+    jobs = _planned(r.stdout + r.stderr)
+    assert len(jobs) == len(set(jobs))
+    runs = {w.split("run=")[1].split(",")[0] for _, w in jobs if "run=" in w}
+    assert {"", "runs/paper/", "runs/sweep_amp/"} <= runs

@@ -21,6 +21,10 @@ def fmt(v: Any, digits: int = 4) -> str:
             return "n/a"
         if math.isinf(v):
             return "inf"
+        if 1e-3 <= abs(v) < 10 ** digits * 100:  # plain notation, ``digits`` significant digits
+            dec = max(0, digits - 1 - math.floor(math.log10(abs(v))))
+            text = f"{round(v, dec):.{dec}f}"
+            return text.rstrip("0").rstrip(".") if "." in text else text
         return f"{v:.{digits}g}"
     return html.escape(str(v))
 
