@@ -54,6 +54,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .errors import InputError, check_finite
 from .io import MEASURED_COLUMNS, versions
 
 __all__ = ["ScenarioError", "load_scenario", "rig_data", "run_scenario", "NOISE_KEYS"]
@@ -70,7 +71,7 @@ _POSITION_CHANNELS = ("x_meas", "y_meas", "y_ss")
 _CURRENT_CHANNELS = ("i_ypos", "i_yneg", "i_xpos", "i_xneg")
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """A scenario file is invalid; the message names the file and the key."""
 
 
@@ -123,6 +124,7 @@ def load_scenario(path: str | Path) -> dict:
     if not path.exists():
         raise ScenarioError(f"{src}: scenario file not found")
     sc = read_yaml_mapping(path, src, ScenarioError)
+    check_finite(sc, src, ScenarioError)
     for k in _TOP_REQUIRED:
         if k not in sc:
             raise ScenarioError(f"{src}: key '{k}' is missing (required)")

@@ -13,6 +13,25 @@ try:
 except ConfigError as _err:
     raise WorkflowError(f"config.yaml: {_err}") from None
 
+
+def canonical(obj):
+    """``obj`` with the keys of every mapping in sorted order (lists keep theirs).
+
+    Snakemake compares a rule's params by their text, in which a dict's key order shows; with
+    the config canonical, reordering keys in config.yaml (no value changed) reruns nothing.
+    """
+    if isinstance(obj, dict):
+        return {k: canonical(obj[k]) for k in sorted(obj, key=str)}
+    if isinstance(obj, list):
+        return [canonical(v) for v in obj]
+    return obj
+
+
+# Every rule's params derive from `config`: make it canonical in place, once, here.
+_canonical = canonical(config)
+config.clear()
+config.update(_canonical)
+
 #: config sections the nonlinear simulator depends on (all physics, no analysis settings)
 SIM_SECTIONS = ["seed", "table1", "geometry", "gravity_m_per_s2", "magnetics", "amplifier",
                 "controller", "selfsensing", "sensors", "simulation"]
