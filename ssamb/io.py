@@ -176,21 +176,36 @@ def versions() -> dict:
     return out
 
 
-def save_npz(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any] | None = None) -> None:
+def save_npz(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any] | None = None,
+             compress: bool = False) -> None:
     """Save ``arrays`` to ``path`` (.npz) and, if given, ``meta`` to the ``.json`` beside it.
 
     A ``meta`` entry is also embedded in the NPZ as the JSON string ``meta`` so that the file is
-    self-describing (the measured-data format requires it).
+    self-describing (the measured-data format requires it). ``compress`` deflates the members
+    (like ``numpy.savez_compressed``). The archive is byte-reproducible (:func:`_write_npz`).
     """
     path = Path(path)
     payload = {k: np.asarray(v) for k, v in arrays.items()}
     if meta is not None:
         payload["meta"] = np.asarray(json.dumps(meta, default=_jsonable, sort_keys=True))
     with atomic_path(path, suffix=".npz") as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **payload)
+        _write_npz(tmp, payload, compress)
     if meta is not None:
         write_json(path.with_suffix(".json"), meta)
+
+
+def _write_npz(path: Path, payload: Mapping[str, np.ndarray], compress: bool) -> None:
+    """An NPZ archive (a zip of ``NAME.npy`` members, what ``numpy.load`` reads) whose bytes
+    depend on the arrays only: ``numpy.savez`` stamps every member with the current time, so no
+    two runs would give the same checksum. Members carry a fixed 1980-01-01 time stamp."""
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(path, "w", compression=method, allowZip64=True) as zf:
+        for name, arr in payload.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = method
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(arr), allow_pickle=False)
 
 
 #: what NumPy raises for a file that is not a readable NPZ (empty, cut short, a damaged member)
@@ -425,7 +440,9 @@ def load_measured(path: str | Path, min_samples: int = 16) -> tuple[dict, dict]:
     return arrays, meta
 
 
-def save_measured(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any]) -> None:
+def save_measured(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any],
+                  compress: bool = False) -> None:
     """Write measured data (validated first, so that nothing invalid is ever written)."""
     validate_measured(arrays, str(path))
-    save_npz(path, arrays, meta)
+    validate_meta(meta, str(path))
+    save_npz(path, arrays, meta, compress=compress)

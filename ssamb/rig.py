@@ -293,15 +293,6 @@ def run_scenario(scenario_path: str | Path, out_path: str | Path, progress: bool
 
 def save_measured_compressed(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any]) -> None:
     """Like :func:`ssamb.io.save_measured` (validated first, atomic, JSON sidecar), compressed."""
-    import json
+    from .io import save_measured
 
-    from .io import _jsonable, atomic_path, validate_measured, write_json
-
-    path = Path(path)
-    validate_measured(arrays, str(path))
-    payload = {k: np.asarray(v) for k, v in arrays.items()}
-    payload["meta"] = np.asarray(json.dumps(meta, default=_jsonable, sort_keys=True))
-    with atomic_path(path, suffix=".npz") as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **payload)
-    write_json(path.with_suffix(".json"), meta)
+    save_measured(path, arrays, meta, compress=True)
