@@ -83,19 +83,20 @@ def validate_effect(effect: Mapping) -> dict:
 
 def _check_type(name: str, key: str, value) -> None:
     """Every parameter is one finite real number, except ``axis`` and ``file`` (text) and the
-    ``external_force`` arrays ``t``, ``fx_n``, ``fy_n`` (finite real sequences)."""
+    ``external_force`` arrays ``t``, ``fx_n``, ``fy_n`` (non-empty lists of finite numbers)."""
     if key in ("axis", "file"):
-        if not isinstance(value, str):
-            raise EffectError(f"effect '{name}': parameter '{key}' must be text (got {value!r})")
-        return
-    arr = np.asarray(value) if name == "external_force" else None
-    if arr is not None and arr.ndim == 1 and arr.size and (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
-        ok = bool(np.isfinite(arr).all())
+        ok, kind = isinstance(value, str), "text"
+    elif name == "external_force":
+        try:
+            arr = np.asarray(value) if isinstance(value, (list, tuple, np.ndarray)) else np.empty((0, 0))
+        except ValueError:        # ragged
+            arr = np.empty((0, 0))
+        ok = (arr.ndim == 1 and arr.size > 0 and arr.dtype.kind in "iuf" and bool(np.isfinite(arr).all()))
+        kind = "a list of finite numbers"
     else:
-        ok = (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(float(value))
-              and name != "external_force")
+        ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(float(value))
+        kind = "a finite number"
     if not ok:
-        kind = "a list of finite numbers" if name == "external_force" else "a finite number"
         raise EffectError(f"effect '{name}': parameter '{key}' must be {kind} (got {value!r})")
 
 
