@@ -6,8 +6,10 @@ Commands (binding interface, ARCHITECTURE.md):
 * ``rig SCENARIO.yaml --out FILE.npz``
 * ``closeloop DATA.npz|DATA.csv --out DIR [--config FILE]``
 
-Every command exits with status 2 and a one-line reason on bad input, and writes no partial
-file (all writers are atomic).
+Every command exits with status 2 and a one-line reason on bad input (an
+:class:`ssamb.errors.InputError`: a config, scenario, effect or data-file error), and writes no
+partial file (all writers are atomic). Any other exception is a programming error and keeps its
+traceback.
 """
 from __future__ import annotations
 
@@ -51,14 +53,15 @@ def _parser() -> argparse.ArgumentParser:
 
 def _cmd_simulate(args) -> None:
     from .config import load_config
+    from .errors import InputError
     from .sim import simulate
 
     out = Path(args.out)
     if out.suffix != ".npz":
-        raise ValueError(f"--out {out}: must end in .npz")
+        raise InputError(f"--out {out}: must end in .npz")
     cfg = load_config(args.config, args.overrides)
     if args.experiment not in cfg["experiments"]:
-        raise ValueError(f"--experiment {args.experiment}: not in config (known: {', '.join(cfg['experiments'])})")
+        raise InputError(f"--experiment {args.experiment}: not in config (known: {', '.join(cfg['experiments'])})")
     res = simulate(cfg, args.experiment, progress=None if not args.quiet else False)
     res.save(out)
 
@@ -77,11 +80,13 @@ def _cmd_closeloop(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status (0 success, 2 bad input)."""
+    from .errors import InputError
+
     args = _parser().parse_args(argv)
     handlers = {"simulate": _cmd_simulate, "rig": _cmd_rig, "closeloop": _cmd_closeloop}
     try:
         handlers[args.command](args)
-    except (ValueError, FileNotFoundError, KeyError) as exc:
+    except InputError as exc:
         msg = " ".join(str(exc).split())
         sys.stderr.write(f"ssamb {args.command}: error: {msg}\n")
         return 2

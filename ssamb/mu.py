@@ -91,9 +91,8 @@ numba kernels compiled with ``cache=True``: the first call in a fresh checkout s
 one-time JIT compilation (15–40 s on a 2-core machine, more under load); later processes load
 the cache from ``ssamb/__pycache__``.  The engine works on a square, zero-padded copy of ``M``
 (a non-square ``[r, c]`` block becomes ``max(r, c)`` square, which leaves μ and both bounds
-unchanged) and maps scalings and Δ back to the user's shapes.  For small matrices, OpenBLAS
-threads only cost time (they spin on a loaded machine): for long sweeps set
-``OPENBLAS_NUM_THREADS=1`` in the environment of the process.
+unchanged) and maps scalings and Δ back to the user's shapes.  BLAS runs single-threaded
+(:mod:`ssamb._threads`): for these small matrices threads only cost time.
 
 References
 ----------

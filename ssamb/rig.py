@@ -54,6 +54,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .errors import InputError, check_finite
 from .io import MEASURED_COLUMNS, versions
 
 __all__ = ["ScenarioError", "load_scenario", "rig_data", "run_scenario", "NOISE_KEYS"]
@@ -70,7 +71,7 @@ _POSITION_CHANNELS = ("x_meas", "y_meas", "y_ss")
 _CURRENT_CHANNELS = ("i_ypos", "i_yneg", "i_xpos", "i_xneg")
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """A scenario file is invalid; the message names the file and the key."""
 
 
@@ -123,6 +124,7 @@ def load_scenario(path: str | Path) -> dict:
     if not path.exists():
         raise ScenarioError(f"{src}: scenario file not found")
     sc = read_yaml_mapping(path, src, ScenarioError)
+    check_finite(sc, src, ScenarioError)
     for k in _TOP_REQUIRED:
         if k not in sc:
             raise ScenarioError(f"{src}: key '{k}' is missing (required)")
@@ -291,15 +293,6 @@ def run_scenario(scenario_path: str | Path, out_path: str | Path, progress: bool
 
 def save_measured_compressed(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any]) -> None:
     """Like :func:`ssamb.io.save_measured` (validated first, atomic, JSON sidecar), compressed."""
-    import json
+    from .io import save_measured
 
-    from .io import _jsonable, atomic_path, validate_measured, write_json
-
-    path = Path(path)
-    validate_measured(arrays, str(path))
-    payload = {k: np.asarray(v) for k, v in arrays.items()}
-    payload["meta"] = np.asarray(json.dumps(meta, default=_jsonable, sort_keys=True))
-    with atomic_path(path, suffix=".npz") as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **payload)
-    write_json(path.with_suffix(".json"), meta)
+    save_measured(path, arrays, meta, compress=True)

@@ -9,40 +9,19 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 import yaml
+from conftest import copy_repo as _copy_repo
+from conftest import ROOT
+from conftest import run_snakemake as _run
 
-ROOT = Path(__file__).resolve().parent.parent
-SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 pytestmark = pytest.mark.workflow
 
 
-def _copy_repo(dst: Path) -> None:
-    for name in ("Snakefile", "config.yaml"):
-        shutil.copy(ROOT / name, dst / name)
-    for d in ("workflow", "resources"):
-        shutil.copytree(ROOT / d, dst / d, ignore=shutil.ignore_patterns("__pycache__", ".snakemake"))
-    shutil.copy(ROOT / "tests" / "data" / "smoke_config.yaml", dst / "smoke.yaml")
-
-
-def _run(cwd: Path, *args, check=True):
-    r = subprocess.run(SNAKEMAKE + list(args), cwd=cwd, capture_output=True, text=True)
-    if check and r.returncode != 0:
-        raise AssertionError(f"snakemake {' '.join(args)} failed:\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}")
-    return r
-
-
 @pytest.fixture(scope="module")
-def workdir(tmp_path_factory):
-    wd = tmp_path_factory.mktemp("smoke")
-    _copy_repo(wd)
-    _run(wd, "--cores", "2", "--configfile", "config.yaml", "smoke.yaml")
-    return wd
+def workdir(smoke_workdir):
+    return smoke_workdir
 
 
 def test_every_stage_output_exists_and_is_sane(workdir):

@@ -18,7 +18,6 @@
 """
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 import time
@@ -81,15 +80,18 @@ def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping) -> dict:
 def run_closeloop(data_path, out_dir, config=None, progress: bool = True) -> dict:
     """Analyse a data file and write ``out_dir/closeloop.json`` and figures.
 
-    Everything is computed and drawn in a temporary directory beside ``out_dir`` and moved in
-    only at the end, so bad input (or any failure) leaves nothing behind.
+    Everything is computed and drawn into a fresh temporary directory beside ``out_dir``,
+    which then replaces ``out_dir`` whole (:func:`ssamb.io.replace_dir`): bad input (or any
+    failure) leaves nothing behind, and ``out_dir`` holds exactly the files of this analysis
+    (no figure of an earlier one survives). An existing ``out_dir`` may only hold what an
+    analysis writes (``closeloop.json``, ``*.png``); anything else is an error, checked first.
 
     Parameters
     ----------
     data_path : path
         Measured data (``.npz``, or ``.csv`` with a ``.json`` sidecar).
     out_dir : path
-        Output directory (created).
+        Output directory (created or replaced).
     config : path or mapping, optional
         Configuration file (default: the repository's ``config.yaml``) or an already loaded
         configuration.
@@ -102,22 +104,23 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True) -> dic
         The ``closeloop.json`` content.
     """
     from ..config import load_config
-    from ..io import load_measured, write_json
+    from ..io import check_replaceable, load_measured, replace_dir, write_json
     from .figures import make_figures
 
+    def owned(p: Path) -> bool:
+        return p.is_file() and (p.name == "closeloop.json" or p.suffix == ".png")
+
+    out_dir = Path(out_dir)
+    check_replaceable(out_dir, owned)
     cfg = dict(config) if isinstance(config, Mapping) else load_config(config)
     arrays, meta = load_measured(data_path)
     report, art = _analyse(arrays, meta, cfg, source=str(data_path), progress=progress)
-    out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}."))
     try:
         report["figures"] = make_figures(art, tmp)
         write_json(tmp / "closeloop.json", report)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        names = sorted(p.name for p in tmp.iterdir())
-        for name in [n for n in names if n != "closeloop.json"] + ["closeloop.json"]:
-            os.replace(tmp / name, out_dir / name)
+        replace_dir(tmp, out_dir, owned)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return report

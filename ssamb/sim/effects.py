@@ -21,15 +21,18 @@ external_force       file (CSV: t, fx_n, fy_n) or t/fx_n/fy_n    arbitrary force
 from __future__ import annotations
 
 import math
+import numbers
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import numpy as np
 
+from ..errors import InputError
+
 __all__ = ["EFFECTS", "EffectError", "validate_effect", "apply_effects"]
 
 
-class EffectError(ValueError):
+class EffectError(InputError):
     """An effect specification is invalid; the message names the effect and the parameter."""
 
 
@@ -61,6 +64,8 @@ def validate_effect(effect: Mapping) -> dict:
     for k in flat:
         if k not in req and k not in opt:
             raise EffectError(f"effect '{name}': unknown parameter '{k}' (allowed: {', '.join(req + opt)})")
+    for k, v in flat.items():
+        _check_type(name, k, v)
     if "axis" in flat and flat["axis"] not in ("x", "y", "both"):
         raise EffectError(f"effect '{name}': axis must be x, y or both (got {flat['axis']!r})")
     if name == "sensor_delay" and not 0 <= float(flat["delay_s"]) < 2.5e-3:
@@ -74,6 +79,25 @@ def validate_effect(effect: Mapping) -> dict:
     if name == "external_force" and "file" not in flat and not all(k in flat for k in ("t", "fx_n", "fy_n")):
         raise EffectError("effect 'external_force': give 'file' (CSV with t, fx_n, fy_n) or arrays t, fx_n, fy_n")
     return {"name": name, **flat}
+
+
+def _check_type(name: str, key: str, value) -> None:
+    """Every parameter is one finite real number, except ``axis`` and ``file`` (text) and the
+    ``external_force`` arrays ``t``, ``fx_n``, ``fy_n`` (non-empty lists of finite numbers)."""
+    if key in ("axis", "file"):
+        ok, kind = isinstance(value, str), "text"
+    elif name == "external_force":
+        try:
+            arr = np.asarray(value) if isinstance(value, (list, tuple, np.ndarray)) else np.empty((0, 0))
+        except ValueError:        # ragged
+            arr = np.empty((0, 0))
+        ok = (arr.ndim == 1 and arr.size > 0 and arr.dtype.kind in "iuf" and bool(np.isfinite(arr).all()))
+        kind = "a list of finite numbers"
+    else:
+        ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(float(value))
+        kind = "a finite number"
+    if not ok:
+        raise EffectError(f"effect '{name}': parameter '{key}' must be {kind} (got {value!r})")
 
 
 def _axes(axis: str) -> tuple[str, ...]:

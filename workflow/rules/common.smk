@@ -11,6 +11,24 @@ from ssamb.channels import SUBSYSTEMS
 from ssamb.config import ConfigError, validate_config
 from ssamb.scenarios import Plan, run_configs, run_prefix, sim_config as _sim_config, study_variants
 
+def canonical(obj):
+    """``obj`` with the keys of every mapping in sorted order (lists keep theirs).
+
+    Snakemake compares a rule's params by their text, in which a dict's key order shows; with
+    the config canonical, reordering keys in config.yaml (no value changed) reruns nothing.
+    """
+    if isinstance(obj, dict):
+        return {k: canonical(obj[k]) for k in sorted(obj, key=str)}
+    if isinstance(obj, list):
+        return [canonical(v) for v in obj]
+    return obj
+
+
+# Every rule's params derive from `config`: make it canonical in place, once, here.
+_canonical = canonical(config)
+config.clear()
+config.update(_canonical)
+
 try:
     validate_config(config)
     _missing = [k for k in ("identification", "assembly", "uncertainty", "mu", "validation", "closeloop")
