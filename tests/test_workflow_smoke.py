@@ -89,7 +89,7 @@ def test_changed_override_reruns_only_that_variant(workdir):
 
 
 def test_study_plans_one_job_per_stage_and_variant(workdir):
-    r = _run(workdir, "-n", "--cores", "1", "--configfile", "config.yaml", "smoke.yaml", "study")
+    r = _run(workdir, "study", "-n", "--cores", "1", "--configfile", "config.yaml", "smoke.yaml")
     jobs = _planned(r.stdout + r.stderr)
     runs = {w.split("run=")[1].split(",")[0] for _, w in jobs if "run=runs/study-" in w}
     assert {"runs/study-baseline/", "runs/study-sweep_law=log/", "runs/study-sweep_law=log+bias=3.2/"} <= runs
