@@ -12,13 +12,13 @@ import copy
 import functools
 import hashlib
 import json
-import math
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 import yaml
 
 from .errors import InputError, nonfinite_keys
+from .io import jsonable
 
 __all__ = [
     "ConfigError",
@@ -274,23 +274,8 @@ def load_config(path: str | Path | None = None, overrides=None) -> dict:
 
 def config_hash(obj: Any) -> str:
     """SHA-256 (first 16 hex digits) of a JSON-serialisable object, key order independent."""
-    blob = json.dumps(obj, sort_keys=True, default=_json_default).encode()
+    blob = json.dumps(obj, sort_keys=True, default=jsonable).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
-
-
-def _json_default(o):
-    if isinstance(o, float) and math.isnan(o):
-        return "nan"
-    try:
-        import numpy as np
-
-        if isinstance(o, np.generic):
-            return o.item()
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-    except ImportError:  # pragma: no cover
-        pass
-    raise TypeError(f"not JSON serialisable: {type(o)}")
 
 
 def get(cfg: Mapping, dotted: str) -> Any:

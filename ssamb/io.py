@@ -136,7 +136,9 @@ def replace_dir(new: str | Path, target: str | Path, owned: Callable[[Path], boo
     raise OSError(f"{target}: could not be replaced (other writers kept recreating it)")
 
 
-def _jsonable(o: Any):
+def jsonable(o: Any):
+    """JSON ``default`` for the project's objects: NumPy scalars and arrays, paths (the one
+    converter every JSON writer and hash uses)."""
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):
@@ -150,7 +152,7 @@ def write_json(path: str | Path, obj: Any) -> None:
     """Write ``obj`` as indented JSON, atomically (numpy scalars and arrays converted)."""
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(obj, fh, indent=2, default=_jsonable, allow_nan=True)
+            json.dump(obj, fh, indent=2, default=jsonable, allow_nan=True)
             fh.write("\n")
 
 
@@ -187,7 +189,7 @@ def save_npz(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any
     path = Path(path)
     payload = {k: np.asarray(v) for k, v in arrays.items()}
     if meta is not None:
-        payload["meta"] = np.asarray(json.dumps(meta, default=_jsonable, sort_keys=True))
+        payload["meta"] = np.asarray(json.dumps(meta, default=jsonable, sort_keys=True))
     with atomic_path(path, suffix=".npz") as tmp:
         _write_npz(tmp, payload, compress)
     if meta is not None:
