@@ -46,8 +46,8 @@ import numpy as np
 
 from .magnetics import NO_NRT
 from .params import (MU0, P_AP, P_COSA, P_FS, P_G0, P_LEQ, P_MUR, P_N, P_PID_AD, P_PID_BD, P_PID_KI_HALF,
-                     P_PID_KP, P_R, P_SS_ALPHA, P_SS_EST, P_SS_GAIN, P_SS_GATE, P_SS_MIN, P_SS_OFF,
-                     P_SS_ORDER, P_SS_W, P_TPWM, P_UMAX, P_V)
+                     P_PID_KP, P_SS_ALPHA, P_SS_EST, P_SS_GAIN, P_SS_GATE, P_SS_MIN, P_SS_OFF,
+                     P_SS_ORDER, P_SS_R, P_SS_W, P_TPWM, P_UMAX, P_V)
 
 __all__ = ["SS_RING", "adc", "pid_step", "trend_basis", "dcm_update", "selfsensing_state"]
 
@@ -189,7 +189,7 @@ def dcm_update(s, p, ring_i, ring_l, lam, i_samp, tb):
     ring_i[slot] = i_samp
     # volt-seconds since the last sample, less the resistive drop R i dt (trapezoidal, sampled current)
     i_prev = ring_i[(nidx - 1) % SS_RING] if nidx > 0 else i_samp
-    ring_l[slot] = s[D_LAM] - p[P_R] * 0.5 * (i_prev + i_samp) / p[P_FS]
+    ring_l[slot] = s[D_LAM] - p[P_SS_R] * 0.5 * (i_prev + i_samp) / p[P_FS]
     s[D_LAM] = 0.0
     nidx += 1
     s[D_N] = nidx

@@ -46,7 +46,7 @@ _names = [
     "SAT", "BKNEE", "PEXP", "HYST", "HC", "NPLAY", "RMAX", "MUR",
     "LEQ", "FS", "SUBSTEPS", "UMAX",
     "PID_KP", "PID_KI_HALF", "PID_AD", "PID_BD",
-    "SS_W", "SS_ALPHA", "SS_ORDER", "SS_GATE", "SS_GAIN", "SS_OFF", "SS_EST", "SS_MIN",
+    "SS_W", "SS_ALPHA", "SS_ORDER", "SS_GATE", "SS_GAIN", "SS_OFF", "SS_EST", "SS_MIN", "SS_R",
     "XS_BW",
     "DELAY_X", "DELAY_Y", "GAIN_X", "GAIN_Y", "DEADTIME", "XCOUP",
     "PID_ON", "CLAMP", "CLAMP_X", "CLAMP_Y", "SS_IDEAL",
@@ -114,10 +114,7 @@ class AMBParams:
     fs_hz: float
     substeps: int
     u_max_a: float
-    derivative_filter_hz: float
-    pid_kp: float
-    pid_ki: float
-    pid_kd: float
+    pid_coefficients: dict       # the kernel's form of controller.pid_discrete (kp, ki_half, a_d, b_d)
     ss_estimator: str
     ss_window: int
     ss_lowpass_hz: float
@@ -231,15 +228,13 @@ class AMBParams:
     def _pack_dsp(self) -> dict:
         """PID (Tustin, see :mod:`ssamb.sim.controller`), self-sensing and converters."""
         dt = 1.0 / self.fs_hz
-        wd = 2 * math.pi * self.derivative_filter_hz
-        # Tustin discretisation of  Kd s / (1 + s/wd):  D_k = a_d D_{k-1} + b_d (e_k - e_{k-1})
-        c = 2.0 / dt
+        pid = self.pid_coefficients
         vals = dict(
-            PID_KP=self.pid_kp, PID_KI_HALF=self.pid_ki * dt / 2.0,
-            PID_AD=(c / wd - 1.0) / (c / wd + 1.0), PID_BD=self.pid_kd * c / (1.0 + c / wd),
+            PID_KP=pid["kp"], PID_KI_HALF=pid["ki_half"], PID_AD=pid["a_d"], PID_BD=pid["b_d"],
             SS_W=self.ss_window, SS_ORDER=self.ss_lowpass_order, SS_GATE=self.ss_gate,
             SS_ALPHA=1.0 - math.exp(-2 * math.pi * self.ss_lowpass_hz * dt),
             SS_GAIN=1.0, SS_OFF=0.0, SS_EST=ESTIMATORS.index(self.ss_estimator), SS_MIN=1e-3,
+            SS_R=self.r_coil_ohm,      # the DSP's coil resistance (its calibration)
             CDELAY=float(self.computation_delay_samples),
         )
         for key, bits, rng in (("I", self.current_adc_bits, self.current_adc_range_a),
@@ -317,6 +312,8 @@ def _converters(cfg: Mapping) -> dict:
 
 def amb_params(cfg: Mapping) -> AMBParams:
     """Build :class:`AMBParams` from a validated configuration dictionary."""
+    from .controller import pid_kernel_coefficients
+
     t1, geo, mag = cfg["table1"], cfg["geometry"], cfg["magnetics"]
     la = t1["axial_length_m"]
     ap = t1["pole_width_m"] * la
@@ -347,8 +344,8 @@ def amb_params(cfg: Mapping) -> AMBParams:
         l_pole_m=l_pole, l_back_m=pitch * (rc + rs) / 2, a_back_m2=(rs - rc) * la,
         l_rotor_arc_m=pitch * (rr + rj) / 2, l_rotor_radial_m=rj - rr, a_rotor_m2=(rj - rr) * la,
         fs_hz=cfg["controller"]["fs_hz"], substeps=int(cfg["simulation"]["substeps"]),
-        u_max_a=cfg["controller"]["u_max_a"], derivative_filter_hz=cfg["controller"]["derivative_filter_hz"],
-        pid_kp=t1["pid_kp_a_per_m"], pid_ki=t1["pid_ki_a_per_m_s"], pid_kd=t1["pid_kd_a_s_per_m"],
+        u_max_a=cfg["controller"]["u_max_a"],
+        pid_coefficients=pid_kernel_coefficients(cfg),
         ss_estimator=ss["estimator"], ss_window=int(ss["window_samples"]), ss_lowpass_hz=ss["lowpass_hz"],
         ss_lowpass_order=int(ss["lowpass_order"]), ss_trend_order=int(ss["trend_order"]),
         ss_gate=float(ss["residual_gate"]), x_bandwidth_hz=cfg["sensors"]["x_bandwidth_hz"],
