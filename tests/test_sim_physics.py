@@ -294,13 +294,13 @@ def test_adc_quantises_within_half_step_and_clips(v, bits):
     input inside the range, clipped to the end codes outside."""
     q = 20.0 / 2**bits
     cmax = 2 ** (bits - 1) - 1
-    out = adc.py_func(v, q, cmax)
+    out = adc.py_func(v, q, 1.0 / q, cmax)
     code = out / q
     assert code == pytest.approx(round(code), abs=1e-9)
     assert -cmax - 1 <= round(code) <= cmax
     if -10.0 + q < v < 10.0 - q:
         assert abs(out - v) <= q / 2 + 1e-12
-    assert adc.py_func(v, 0.0, 0.0) == v
+    assert adc.py_func(v, 0.0, 0.0, 0.0) == v
 
 
 @given(w=st.integers(4, 40), order=st.integers(0, 3))

@@ -15,6 +15,7 @@ closed-loop LTI assembly uses the same object, so both stages share one controll
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Mapping
 
 import control
@@ -47,8 +48,17 @@ def pid_kernel_coefficients(cfg: Mapping) -> dict:
     + b_d\frac{z-1}{z-a_d}`. The coefficients are read off :func:`pid_discrete` by partial
     fractions: :math:`a_d` is its pole other than 1, the residue at 1 is :math:`K_I T`, the
     residue at :math:`a_d` is :math:`b_d (a_d - 1)`, and :math:`C(\infty) = K_P + K_I T/2 + b_d`.
-    Returns ``{"kp", "ki_half", "a_d", "b_d"}``.
+    Returns ``{"kp", "ki_half", "a_d", "b_d"}`` (cached on the five numbers that define the PID).
     """
+    t1, ctl = cfg["table1"], cfg["controller"]
+    return dict(_kernel_coefficients(t1["pid_kp_a_per_m"], t1["pid_ki_a_per_m_s"], t1["pid_kd_a_s_per_m"],
+                                     ctl["derivative_filter_hz"], ctl["fs_hz"]))
+
+
+@lru_cache(maxsize=64)
+def _kernel_coefficients(kp: float, ki: float, kd: float, f_d: float, fs: float) -> tuple:
+    cfg = {"table1": {"pid_kp_a_per_m": kp, "pid_ki_a_per_m_s": ki, "pid_kd_a_s_per_m": kd},
+           "controller": {"derivative_filter_hz": f_d, "fs_hz": fs}}
     tf = control.ss2tf(pid_discrete(cfg))
     num = np.asarray(tf.num[0][0], float)
     den = np.asarray(tf.den[0][0], float)
@@ -60,4 +70,4 @@ def pid_kernel_coefficients(cfg: Mapping) -> dict:
     ki_half = res_1 / 2.0
     b_d = res_d / (a_d - 1.0)
     c_inf = num[0] if len(num) == len(den) else 0.0
-    return {"kp": float(c_inf - ki_half - b_d), "ki_half": float(ki_half), "a_d": a_d, "b_d": float(b_d)}
+    return (("kp", float(c_inf - ki_half - b_d)), ("ki_half", float(ki_half)), ("a_d", a_d), ("b_d", float(b_d)))

@@ -66,12 +66,13 @@ D_SIZE = 9
 
 
 def selfsensing_state(y0: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """DCM state vector (low-pass at ``y0``) and its ring buffers (current, volt-seconds, work)."""
+    """DCM state vector (low-pass at ``y0``) and its buffers (rings of currents and volt-seconds,
+    and the contiguous window), one row each of a (3, 2 SS_RING) array."""
     s = np.zeros(D_SIZE)
     s[D_RAW] = y0
     s[D_OUT] = y0
     s[D_LP:D_LP + 4] = y0
-    return s, np.zeros(SS_RING), np.zeros(SS_RING), np.zeros(SS_RING)
+    return s, np.zeros((3, 2 * SS_RING))
 
 
 def trend_basis(window: int, order: int) -> np.ndarray:
@@ -87,11 +88,12 @@ def trend_basis(window: int, order: int) -> np.ndarray:
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
-def adc(v, q, cmax):
-    """Quantise ``v`` with step ``q`` (mid-tread) and codes ``-cmax-1 .. cmax``; ``q = 0``: ideal."""
+def adc(v, q, inv_q, cmax):
+    """Quantise ``v`` with step ``q`` (``inv_q`` = 1/q; mid-tread) and codes ``-cmax-1 .. cmax``;
+    ``q = 0``: ideal."""
     if q <= 0.0:
         return v
-    c = math.floor(v / q + 0.5)
+    c = math.floor(v * inv_q + 0.5)
     if c > cmax:
         c = cmax
     elif c < -cmax - 1.0:
@@ -123,9 +125,10 @@ def pid_step(st, p, base, e):
 
 
 @nb.njit(**_HOT)
-def _fit_lsq(p, ring_i, lam, first, w, tb):
+def _fit_lsq(p, win, w, tb):
     """Least-squares ``1/L`` over the window (trend projected out); 0.0 if degenerate or gated.
 
+    ``win`` holds the window's volt-seconds at ``[0, w)`` and currents at ``[SS_RING, SS_RING + w)``.
     Returns ``(a, rejected)``.
     """
     npoly = tb.shape[0]
@@ -133,17 +136,18 @@ def _fit_lsq(p, ring_i, lam, first, w, tb):
     sli = 0.0
     sii = 0.0
     for q in range(w):
-        ii = ring_i[(first + q) % SS_RING]
-        sll += lam[q] * lam[q]
-        sli += lam[q] * ii
+        lq = win[q]
+        ii = win[SS_RING + q]
+        sll += lq * lq
+        sli += lq * ii
         sii += ii * ii
     for m in range(npoly):
         tl = 0.0
         ti = 0.0
         for q in range(w):
             bm = tb[m, q]
-            tl += bm * lam[q]
-            ti += bm * ring_i[(first + q) % SS_RING]
+            tl += bm * win[q]
+            ti += bm * win[SS_RING + q]
         sll -= tl * tl
         sli -= tl * ti
         sii -= ti * ti
@@ -159,30 +163,30 @@ def _fit_lsq(p, ring_i, lam, first, w, tb):
 
 
 @nb.njit(**_HOT)
-def _fit_peak(p, ring_i, lam, first, w):
+def _fit_peak(p, win, w):
     """Peak estimate ``1/L`` from the largest and smallest sample of the window (0.0 if degenerate)."""
     kmax = 0
     kmin = 0
-    imax = ring_i[first % SS_RING]
+    imax = win[SS_RING]
     imin = imax
     for q in range(1, w):
-        ii = ring_i[(first + q) % SS_RING]
+        ii = win[SS_RING + q]
         if ii > imax:
             imax = ii
             kmax = q
         elif ii < imin:
             imin = ii
             kmin = q
-    dl = lam[kmax] - lam[kmin]
+    dl = win[kmax] - win[kmin]
     if dl <= p[P_SS_MIN] * p[P_V] * p[P_TPWM]:
         return 0.0
     return (imax - imin) / dl
 
 
 @nb.njit(**_HOT)
-def dcm_update(s, p, ring_i, ring_l, lam, i_samp, tb):
+def dcm_update(s, p, ring_i, ring_l, win, i_samp, tb):
     r"""Push one ypos current sample (and the volt-seconds since the last one) and update the
-    estimate (see the module docstring). ``lam`` is a work array of at least ``W`` entries."""
+    estimate (see the module docstring). ``win`` is a work array of ``2 SS_RING`` entries."""
     w = int(p[P_SS_W])
     nidx = int(s[D_N])
     slot = nidx % SS_RING
@@ -197,14 +201,16 @@ def dcm_update(s, p, ring_i, ring_l, lam, i_samp, tb):
         return
     first = nidx - w
     acc = 0.0
-    lam[0] = 0.0
-    for q in range(1, w):
-        acc += ring_l[(first + q) % SS_RING]
-        lam[q] = acc
+    for q in range(w):                      # the window, contiguous: volt-seconds and currents
+        k = (first + q) % SS_RING
+        if q > 0:
+            acc += ring_l[k]
+        win[q] = acc
+        win[SS_RING + q] = ring_i[k]
     if p[P_SS_EST] > 0.5:
-        a = _fit_peak(p, ring_i, lam, first, w)
+        a = _fit_peak(p, win, w)
     else:
-        a, rej = _fit_lsq(p, ring_i, lam, first, w, tb)
+        a, rej = _fit_lsq(p, win, w, tb)
         if rej:
             s[D_REJ] += 1.0
     if a <= 0.0:

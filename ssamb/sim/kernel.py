@@ -47,16 +47,17 @@ import numpy as np
 
 from .dsp import D_LAM, D_OUT, D_RAW, adc, dcm_update, pid_step
 from .magnetics import MAX_PLAY, NO_NRT, gap_sum, mmf_update
-from .params import (MAX_LADDER, MU0, P_AP, P_CC, P_CDELAY, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_CLEAR,
-                     P_COSA, P_DEADTIME, P_DELAY_X, P_DELAY_Y, P_DMAX, P_DMIN, P_FS, P_GAIN_X,
-                     P_GAIN_Y, P_GE, P_GRAV, P_I_CMAX, P_I_Q, P_IBIAS, P_IREF_MAX, P_KC, P_KI_PA,
-                     P_KP_PA, P_LAD_C0, P_LAD_INVTAU, P_MASS, P_N, P_NLAD, P_PID_ON, P_QHALF, P_R,
-                     P_SS_IDEAL, P_SUBSTEPS, P_TPWM, P_V, P_X_CMAX, P_X_Q, P_XCOUP, P_XNET, P_XS_BW)
+from .params import (MAX_LADDER, P_CC, P_CDELAY, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_CLEAR, P_DEADTIME,
+                     P_DELAY_X, P_DELAY_Y, P_DMAX, P_DMIN, P_FORCE_K, P_FS, P_GAIN_X, P_GAIN_Y, P_GE,
+                     P_GRAV, P_I_CMAX, P_I_INVQ, P_I_Q, P_IBIAS, P_INV_AP, P_INV_MASS, P_INV_N,
+                     P_IREF_MAX, P_KC, P_KI_PA, P_KP_PA, P_LAD_C0, P_LAD_INVTAU, P_LAD_TAU, P_MASS, P_N,
+                     P_NLAD, P_PID_ON, P_QHALF, P_R, P_SS_IDEAL, P_SUBSTEPS, P_TPWM, P_V, P_X_CMAX,
+                     P_X_INVQ, P_X_Q, P_XCOUP, P_XNET, P_XS_BW)
 
 # numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
 # params.py (the P_* layout) or a compiled helper imported from another module, change this
 # file too (or clear __pycache__), or stale machine code with old constants is reused.
-# cache generation: 2 (P_* layout of the converters / ladder / network)
+# cache generation: 3 (P_* layout of the converters / ladder / network)
 
 # helpers called every sample: no numba runtime (see magnetics.NO_NRT), no allocation
 _HOT = dict(cache=True, error_model="numpy", fastmath=True, **NO_NRT)
@@ -182,10 +183,11 @@ def _segment_ladder(ph, v, f0, df, fe0, h, lad, j, p):
     Returns ``(Phi1, F1, Fe1, blocked, int_Phi, int_Phi2, int_v)``.
     """
     n = p[P_N]
+    inv_n = p[P_INV_N]
     r = p[P_R]
     nlad = int(p[P_NLAD])
     e1 = math.exp(-h * p[P_LAD_INVTAU])
-    tk = 1.0 / p[P_LAD_INVTAU]
+    tk = p[P_LAD_TAU]
     ek = e1
     a_sum = 0.0
     b_sum = 0.0
@@ -199,13 +201,14 @@ def _segment_ladder(ph, v, f0, df, fe0, h, lad, j, p):
         ek *= ek
         ek *= ek
         ek *= ek
-    i0 = (f0 + fe0) / n
+    i0 = (f0 + fe0) * inv_n
     if i0 < 0.0:
         i0 = 0.0
-    g = (df * h + a_sum) / n
-    rho = (v - 0.5 * r * (i0 + (f0 + b_sum) / n)) / (n + 0.5 * r * g)
-    if (f0 + b_sum) / n + rho * g >= 0.0:
-        tk = 1.0 / p[P_LAD_INVTAU]
+    g = (df * h + a_sum) * inv_n
+    i_b = (f0 + b_sum) * inv_n
+    rho = (v - 0.5 * r * (i0 + i_b)) / (n + 0.5 * r * g)
+    if i_b + rho * g >= 0.0:
+        tk = p[P_LAD_TAU]
         ek = e1
         for k in range(nlad):
             q = rho * tk
@@ -240,13 +243,13 @@ def _segment_ladder(ph, v, f0, df, fe0, h, lad, j, p):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
-def _coil_i(blk, volt, f, fe, ge, vs, n, den):
+def _coil_i(blk, volt, f, fe, ge, vs, n, inv_den):
     r"""Coil current from the carried MMF ``f`` and eddy MMF ``fe``,
-    :math:`(g_e v + N(\mathcal F_m + \mathcal F_{eddy}))/(g_e R + N^2)` (``den``
-    :math:`= g_e R + N^2`); 0 while the diodes block."""
+    :math:`(g_e v + N(\mathcal F_m + \mathcal F_{eddy}))/(g_e R + N^2)` (``inv_den``
+    :math:`= 1/(g_e R + N^2)`); 0 while the diodes block."""
     if blk > 0.5:
         return 0.0
-    i = (ge * volt * vs + n * (f + fe)) / den
+    i = (ge * volt * vs + n * (f + fe)) * inv_den
     return i if i > 0.0 else 0.0
 
 
@@ -310,15 +313,17 @@ def _rotor_step(st, p, h, fmx, fmy, fext_x, fext_y):
     fy = fmy + fext_y - m * p[P_GRAV]
     rr = math.sqrt(x * x + y * y)
     if rr > p[P_CLEAR]:
+        inv_rr = 1.0 / rr
         pen = rr - p[P_CLEAR]
-        vn = (x * vx + y * vy) / rr
+        vn = (x * vx + y * vy) * inv_rr
         fn = p[P_KC] * pen + p[P_CC] * vn
         if fn < 0.0:
             fn = 0.0
-        fx -= fn * x / rr
-        fy -= fn * y / rr
-    vx1 = vx + fx / m * h
-    vy1 = vy + fy / m * h
+        fx -= fn * x * inv_rr
+        fy -= fn * y * inv_rr
+    hm = h * p[P_INV_MASS]
+    vx1 = vx + fx * hm
+    vy1 = vy + fy * hm
     st[S_X] = x + 0.5 * (vx + vx1) * h
     st[S_Y] = y + 0.5 * (vy + vy1) * h
     st[S_VX] = vx1
@@ -336,7 +341,8 @@ def _mean_forces(p, m1, m2, h, qm):
     with alternating sign around the stator xpos -> ypos -> xneg -> yneg) uses the mean fluxes.
     """
     c = p[P_XCOUP]
-    k = p[P_COSA] / (MU0 * p[P_AP]) / h
+    inv_h = 1.0 / h
+    k = p[P_FORCE_K] * inv_h
     if c == 0.0:
         fy = k * (m2[0] - m2[1])
         fx = k * (m2[2] - m2[3])
@@ -345,13 +351,13 @@ def _mean_forces(p, m1, m2, h, qm):
         e1 = c * (m1[3] - m1[2])
         e2 = c * (m1[0] - m1[1])
         e3 = c * (m1[1] - m1[0])
-        q0 = m2[0] + 2.0 * m1[0] * e0 / h + e0 * e0 / h
-        q1 = m2[1] + 2.0 * m1[1] * e1 / h + e1 * e1 / h
-        q2 = m2[2] + 2.0 * m1[2] * e2 / h + e2 * e2 / h
-        q3 = m2[3] + 2.0 * m1[3] * e3 / h + e3 * e3 / h
+        q0 = m2[0] + (2.0 * m1[0] * e0 + e0 * e0) * inv_h
+        q1 = m2[1] + (2.0 * m1[1] * e1 + e1 * e1) * inv_h
+        q2 = m2[2] + (2.0 * m1[2] * e2 + e2 * e2) * inv_h
+        q3 = m2[3] + (2.0 * m1[3] * e3 + e3 * e3) * inv_h
         fx, fy = k * (q2 - q3), k * (q0 - q1)
     if p[P_XNET] > 0.5:
-        inv_h2 = 1.0 / (h * h)
+        inv_h2 = inv_h * inv_h
         for r in range(4):
             for s in range(r, 4):
                 e = _sym(r, s)
@@ -399,7 +405,6 @@ def _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip, rip_n, trac
     T = p[P_TPWM]
     vs = p[P_V]
     n = p[P_N]
-    den = ge * p[P_R] + n * n
     ladder = p[P_NLAD] > 0.5
     ph = st[S_PHI + j]
     volt = st[S_VOLT + j]
@@ -440,7 +445,7 @@ def _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip, rip_n, trac
             scmd += volt * vs * (t_seg - t_cur)
             t_cur = t_seg
             if tr:
-                i0 = _coil_i(blk, volt, f, fe, ge, vs, n, den)
+                i0 = _coil_i(blk, volt, f, fe, ge, vs, n, inv_den)
                 rmax = max(rmax, i0)
                 rmin = min(rmin, i0)
         if last:
@@ -455,9 +460,9 @@ def _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip, rip_n, trac
             mper += 1.0
             ts = mper * T
             volt = -1.0
-            i_true = _coil_i(blk, volt, f, fe, ge, vs, n, den)
+            i_true = _coil_i(blk, volt, f, fe, ge, vs, n, inv_den)
             m_idx = min(int(mper), npi.shape[1] - 1)
-            i_meas = adc(i_true + npi[j, m_idx], p[P_I_Q], p[P_I_CMAX])
+            i_meas = adc(i_true + npi[j, m_idx], p[P_I_Q], p[P_I_INVQ], p[P_I_CMAX])
             dty = _pi_update(st, p, j, i_meas)
             t_on = ts + (1.0 - dty) * T / 2.0 + p[P_DEADTIME]
             t_off = ts + (1.0 + dty) * T / 2.0
@@ -473,7 +478,7 @@ def _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip, rip_n, trac
                 rmin = i_true
                 st[S_RIPN] = 1.0
         if tr:
-            i0 = _coil_i(blk, volt, f, fe, ge, vs, n, den)
+            i0 = _coil_i(blk, volt, f, fe, ge, vs, n, inv_den)
             rmax = max(rmax, i0)
             rmin = min(rmin, i0)
     st[S_PHI + j] = ph
@@ -530,7 +535,7 @@ def _magnet_mmfs(st, p, z, lad, qtab, fm, dfm, fem, qm):
 def _control(st, p, ss, rings, k, fs, x_sens, drive, noise_y):
     """Self-sensed y, sensor effects, PID and the current references (computation delay)."""
     if p[P_SS_IDEAL] > 0.5:    # ideal y sensor instead of DCM (diagnostics)
-        y_ss = p[P_GAIN_Y] * adc(st[S_Y] + noise_y, p[P_X_Q], p[P_X_CMAX])
+        y_ss = p[P_GAIN_Y] * adc(st[S_Y] + noise_y, p[P_X_Q], p[P_X_INVQ], p[P_X_CMAX])
     else:
         y_ss = p[P_GAIN_Y] * ss[D_OUT]
     dn = int(st[S_DN])
@@ -577,6 +582,7 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
     dt = 1.0 / fs
     nsub = int(p[P_SUBSTEPS])
     h = dt / nsub
+    inv_h = 1.0 / h
     axs = -math.expm1(-p[P_XS_BW] * h)
     record_fine = fine.shape[1] > 0
     track = rip.shape[1] > 0
@@ -586,7 +592,6 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
     inv_den = 1.0 / (n_turns * n_turns + ge * p[P_R])
     n_den = n_turns * inv_den
     r_den = p[P_R] * inv_den
-    den_i = ge * p[P_R] + n_turns * n_turns
     vs = p[P_V]
     vbar = np.zeros(4)
     fm = np.zeros(4)
@@ -600,19 +605,19 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
         _magnet_mmfs(st, p, z, lad, qtab, fm, dfm, fem, qm)
         # ---------------- converters of the DSP ----------------
         for j in range(4):
-            i_true = _coil_i(st[S_BLK + j], st[S_VOLT + j], fm[j], fem[j], ge, vs, n_turns, den_i)
-            isamp[j] = adc(i_true + noise[2 + j, k], p[P_I_Q], p[P_I_CMAX])
-        x_sens = adc(p[P_GAIN_X] * st[S_XS] + noise[0, k], p[P_X_Q], p[P_X_CMAX])
+            i_true = _coil_i(st[S_BLK + j], st[S_VOLT + j], fm[j], fem[j], ge, vs, n_turns, inv_den)
+            isamp[j] = adc(i_true + noise[2 + j, k], p[P_I_Q], p[P_I_INVQ], p[P_I_CMAX])
+        x_sens = adc(p[P_GAIN_X] * st[S_XS] + noise[0, k], p[P_X_Q], p[P_X_INVQ], p[P_X_CMAX])
         dcm_update(ss, p, ss_rings[0], ss_rings[1], ss_rings[2], isamp[0], tb)
         x_ctl, y_ctl = _control(st, p, ss, rings, k, fs, x_sens, drive, noise[1, k])
         # ---------------- record ----------------
         out[O_T, k] = t
         out[O_XM, k] = x_ctl
-        out[O_YM, k] = adc(st[S_Y] + noise[1, k], p[P_X_Q], p[P_X_CMAX])
+        out[O_YM, k] = adc(st[S_Y] + noise[1, k], p[P_X_Q], p[P_X_INVQ], p[P_X_CMAX])
         out[O_YSS, k] = y_ctl
         for j in range(4):
             out[O_I + j, k] = isamp[j]
-            out[O_B + j, k] = st[S_PHI + j] / p[P_AP]
+            out[O_B + j, k] = st[S_PHI + j] * p[P_INV_AP]
             out[O_D + j, k] = st[S_DUTY + j]
         out[O_UX, k] = st[S_UX]
         out[O_UY, k] = st[S_UY]
@@ -634,7 +639,7 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
             for j in range(4):
                 rip_n, m1[j], m2[j], sv, scmd = _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip,
                                                                 rip_n, track, n_den, r_den, ge, inv_den)
-                vbar[j] = sv / h
+                vbar[j] = sv * inv_h
                 if j == 0:
                     ss[D_LAM] += scmd
             fmx, fmy = _mean_forces(p, m1, m2, h, qm)
@@ -645,7 +650,7 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
                 col = k * nsub + s
                 fine[0, col] = t_b
                 for j in range(4):
-                    fine[1 + j, col] = _coil_i(st[S_BLK + j], st[S_VOLT + j], fm[j], fem[j], ge, vs, n_turns, den_i)
+                    fine[1 + j, col] = _coil_i(st[S_BLK + j], st[S_VOLT + j], fm[j], fem[j], ge, vs, n_turns, inv_den)
                     fine[5 + j, col] = st[S_PHI + j]
                     fine[9 + j, col] = vbar[j]
     return rip_n

@@ -44,16 +44,16 @@ _names = [
     "N", "R", "GE", "V", "TPWM", "KP_PA", "KI_PA", "DMIN", "DMAX", "IREF_MAX", "IBIAS",
     "AP", "G0", "COSA", "MASS", "GRAV", "CLEAR", "KC", "CC",
     "SAT", "BKNEE", "PEXP", "HYST", "HC", "NPLAY", "RMAX", "MUR",
-    "LEQ", "FS", "SUBSTEPS", "UMAX",
+    "LEQ", "FS", "SUBSTEPS", "UMAX", "INV_N", "INV_MASS", "FORCE_K",
     "PID_KP", "PID_KI_HALF", "PID_AD", "PID_BD",
     "SS_W", "SS_ALPHA", "SS_ORDER", "SS_GATE", "SS_GAIN", "SS_OFF", "SS_EST", "SS_MIN", "SS_R",
     "XS_BW",
     "DELAY_X", "DELAY_Y", "GAIN_X", "GAIN_Y", "DEADTIME", "XCOUP",
     "PID_ON", "CLAMP", "CLAMP_X", "CLAMP_Y", "SS_IDEAL",
     # converters of the DSP: quantisation step and largest code (0 step: ideal), computation delay
-    "I_Q", "I_CMAX", "X_Q", "X_CMAX", "CDELAY",
+    "I_Q", "I_INVQ", "I_CMAX", "X_Q", "X_INVQ", "X_CMAX", "CDELAY",
     # eddy ladder: sections, 1/tau_1, and the MMF coefficients c_k = R_fe a_k (A/Wb)
-    "NLAD", "LAD_INVTAU",
+    "NLAD", "LAD_INVTAU", "LAD_TAU",
     # cross-coupling network (0/1) and the half width of its tables (m)
     "XNET", "QHALF",
     # derived constants (reciprocals precomputed for the kernel)
@@ -219,6 +219,8 @@ class AMBParams:
             GRAV=self.weight_n / self.mass_kg, CLEAR=self.clearance_m, KC=self.contact_stiffness_n_per_m,
             CC=self.contact_damping_n_s_per_m, MUR=self.mu_r, LEQ=self.l_eq_m,
             FS=self.fs_hz, SUBSTEPS=self.substeps, UMAX=self.u_max_a,
+            INV_N=1.0 / self.turns, INV_MASS=1.0 / self.mass_kg,
+            FORCE_K=self.cos_alpha / (MU0 * self.pole_area_m2),   # force per squared flux, Phi^2 cos(a)/(mu0 A_p)
             XS_BW=2 * math.pi * self.x_bandwidth_hz,
             DELAY_X=0.0, DELAY_Y=0.0, GAIN_X=1.0, GAIN_Y=1.0, DEADTIME=0.0, XCOUP=0.0,
             PID_ON=1.0, CLAMP=0.0, CLAMP_X=0.0, CLAMP_Y=0.0, SS_IDEAL=0.0,
@@ -240,6 +242,7 @@ class AMBParams:
         for key, bits, rng in (("I", self.current_adc_bits, self.current_adc_range_a),
                                ("X", self.position_adc_bits, self.position_adc_range_m)):
             vals[key + "_Q"] = 2.0 * rng / 2**bits if bits > 0 else 0.0
+            vals[key + "_INVQ"] = 2**bits / (2.0 * rng) if bits > 0 else 0.0
             vals[key + "_CMAX"] = 2 ** (bits - 1) - 1 if bits > 0 else 0.0
         return vals
 
@@ -262,6 +265,7 @@ class AMBParams:
             INV_PHIK=1.0 / (ap * self.b_knee_t),
             NLAD=len(self.ladder_weights),
             LAD_INVTAU=1.0 / self.ladder_taus_s[0] if self.ladder_taus_s else 0.0,
+            LAD_TAU=self.ladder_taus_s[0] if self.ladder_taus_s else 0.0,
         )
         for k in range(MAX_LADDER):
             w = self.ladder_weights[k] if k < len(self.ladder_weights) else 0.0

@@ -8,6 +8,7 @@ from :func:`equilibrium` starts at rest.
 """
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 from scipy.optimize import brentq
 
@@ -29,15 +30,40 @@ def network_tables(par: AMBParams) -> np.ndarray:
     return np.ascontiguousarray(coupling_tables(par)[0])
 
 
+#: upper-triangle index of every entry of a symmetric 4x4 matrix
+_FULL = np.array([[UPPER.index((min(j, k), max(j, k))) for k in range(4)] for j in range(4)])
+
+
 def _coupling(packed, qtab, x, y) -> np.ndarray:
     """Q, dQ/dx, dQ/dy (3 x 4 x 4) interpolated as in the kernel (zero with the network off)."""
     qm = np.zeros(30)
     if packed[P_XNET] > 0.5:
         _interp_q(qtab, packed, x, y, qm)
-    out = np.zeros((3, 4, 4))
-    for e, (j, k) in enumerate(UPPER):
-        out[:, j, k] = out[:, k, j] = qm[[e, 10 + e, 20 + e]]
-    return out
+    return qm.reshape(3, 10)[:, _FULL]
+
+
+@nb.njit(cache=True)
+def _coupled_fluxes(p, q, cur, gs):
+    r"""Newton's method on :math:`N i = \mathcal F_m(\Phi) + Q\Phi` (hysteresis off in ``p``)."""
+    z = np.zeros(MAX_PLAY)
+    n = p[P_N]
+    phi = np.empty(4)
+    for j in range(4):
+        phi[j] = flux_from_current(cur[j], gs[j], z, p)
+    if not np.any(q != 0.0):
+        return phi
+    for _ in range(50):
+        jac = q.copy()
+        r = q @ phi - n * cur
+        for j in range(4):
+            f, df = mmf(phi[j], gs[j], z, p)
+            r[j] += f
+            jac[j, j] += df
+        step = np.linalg.solve(jac, r)
+        phi -= step
+        if np.max(np.abs(step)) <= 1e-14 * (np.max(np.abs(phi)) + 1e-12):
+            break
+    return phi
 
 
 def static_fluxes(packed: np.ndarray, qtab: np.ndarray, currents_a, x_m: float = 0.0,
@@ -46,22 +72,9 @@ def static_fluxes(packed: np.ndarray, qtab: np.ndarray, currents_a, x_m: float =
     off): :math:`N i = \mathcal F_m(\Phi) + Q\Phi`, Newton's method from the uncoupled fluxes."""
     p = packed.copy()
     p[P_HYST] = 0.0
-    z = np.zeros(MAX_PLAY)
-    disp = (y_m, -y_m, x_m, -x_m)
-    gs = [gap_sum(d, p) for d in disp]
-    n = p[P_N]
+    gs = np.array([gap_sum(d, p) for d in (y_m, -y_m, x_m, -x_m)])
     cur = np.maximum(np.asarray(currents_a, float), 0.0)
-    phi = np.array([flux_from_current(cur[j], gs[j], z, p) for j in range(4)])
-    q = _coupling(p, qtab, x_m, y_m)[0]
-    if not np.any(q):
-        return phi
-    for _ in range(50):
-        f, df = np.array([mmf(phi[j], gs[j], z, p) for j in range(4)]).T
-        step = np.linalg.solve(np.diag(df) + q, f + q @ phi - n * cur)
-        phi -= step
-        if np.max(np.abs(step)) <= 1e-14 * (np.max(np.abs(phi)) + 1e-12):
-            break
-    return phi
+    return _coupled_fluxes(p, np.ascontiguousarray(_coupling(p, qtab, x_m, y_m)[0]), cur, gs)
 
 
 def static_forces(packed: np.ndarray, qtab: np.ndarray, phi, x_m: float = 0.0, y_m: float = 0.0):
@@ -145,5 +158,5 @@ def initial_state(par: AMBParams, start: str, eq: dict | None):
             st[S_IREFN + j] = par.i_bias_a
     else:
         raise ConfigError(f"experiment start '{start}': must be 'rest' or 'levitated'")
-    ss, ring_i, ring_l, work = selfsensing_state(st[S_Y] if start == "levitated" else 0.0)
-    return st, ss, z, lad, rings, np.stack([ring_i, ring_l, work])
+    ss, ss_rings = selfsensing_state(st[S_Y] if start == "levitated" else 0.0)
+    return st, ss, z, lad, rings, ss_rings
