@@ -104,3 +104,22 @@ def test_static_force_equals_network_maxwell_force(par):
     assert fx == pytest.approx(f_ref[0], rel=2e-3)
     assert fy == pytest.approx(f_ref[1], rel=2e-3)
     assert math.isfinite(fx) and abs(fy) > 10.0
+
+
+def test_network_position_stiffness_by_hand():
+    """Why the network stiffens the plant: with a common journal (ideal iron, equal currents) each
+    pole's flux follows its own gap, Phi_p = (N i/2) mu0 A / g_p, so the co-energy
+    sum_p F^2 mu0 A/(2 g_p) gives k_s = N^2 i^2 mu0 A sum_p sin^2(theta_p)/(4 g0^3)
+    = N^2 i^2 mu0 A / g0^3 (sum of sin^2 over the 8 poles = 4); the series model, whose two poles
+    of a magnet carry one flux, gives k_s = N^2 i^2 mu0 A cos^2(alpha)/g0^3. Ratio 1/cos^2(alpha)
+    = 1.17. Without the network the static model is the series one (AMBParams.ki_ks)."""
+    from ssamb.sim.statics import linear_stiffness
+
+    base = {"magnetics.saturation": False, "magnetics.hysteresis": False, "weight_share": 0.0,
+            "table1.mu_r": 1.0e9}
+    series = amb_params(apply_overrides(load_config(), {**base, "magnetics.cross_coupling": False}))
+    network = amb_params(apply_overrides(load_config(), base))
+    ki_s, ks_s = linear_stiffness(series)
+    assert (ki_s, ks_s) == pytest.approx(series.ki_ks(0.0), rel=1e-4)
+    _, ks_n = linear_stiffness(network)
+    assert ks_n / ks_s == pytest.approx(1.0 / math.cos(network.pole_half_angle_rad) ** 2, rel=0.01)

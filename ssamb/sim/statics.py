@@ -20,7 +20,7 @@ from .magnetics import MAX_PLAY, flux_from_current, force_from_flux, gap_sum, mm
 from .network import UPPER, coupling_tables
 from .params import P_HYST, P_N, P_XNET, AMBParams
 
-__all__ = ["network_tables", "static_fluxes", "static_forces", "equilibrium", "initial_state"]
+__all__ = ["network_tables", "static_fluxes", "static_forces", "equilibrium", "linear_stiffness", "initial_state"]
 
 
 def network_tables(par: AMBParams) -> np.ndarray:
@@ -125,6 +125,35 @@ def equilibrium(par: AMBParams, packed: np.ndarray, qtab: np.ndarray | None = No
     phis = static_fluxes(packed, qtab, cur, x_m, y_m)
     duty = 0.5 + par.r_coil_ohm * cur / (2 * par.v_supply_v)
     return {"u_x": ux, "u_y": uy, "currents_a": cur, "phi_wb": phis, "duty": duty, "x_m": x_m, "y_m": y_m}
+
+
+def linear_stiffness(par: AMBParams, axis: str = "y", packed: np.ndarray | None = None,
+                     qtab: np.ndarray | None = None) -> tuple[float, float]:
+    r"""Current and position stiffness :math:`(k_i, k_s)` of the whole static model (series
+    magnets and, when on, the stator network) at the levitated equilibrium, along ``axis``:
+    central differences of the force in the differential control current and in the rotor
+    position at the equilibrium currents (hysteresis off).
+
+    With the network on, :math:`k_s` exceeds the series model's :meth:`AMBParams.ki_ks`: every pole
+    of the other axis' magnets returns its flux through the common journal, so its flux follows
+    its own gap and the magnets pull sideways on a displaced rotor (the series model forces a
+    magnet's two poles to carry one flux).
+    """
+    packed = par.pack() if packed is None else packed
+    qtab = network_tables(par) if qtab is None else qtab
+    eq = equilibrium(par, packed, qtab)
+    cur = np.asarray(eq["currents_a"], float)
+    ax = 1 if axis == "y" else 0
+    sign = np.array([1.0, -1.0, 0.0, 0.0]) if axis == "y" else np.array([0.0, 0.0, 1.0, -1.0])
+    di, dx = 1e-3, 1e-7
+
+    def force(c, x, y):
+        return static_forces(packed, qtab, static_fluxes(packed, qtab, c, x, y), x, y)[ax]
+
+    ki = (force(cur + di * sign, 0.0, 0.0) - force(cur - di * sign, 0.0, 0.0)) / (2 * di)
+    d = (dx, 0.0) if axis == "x" else (0.0, dx)
+    ks = (force(cur, *d) - force(cur, -d[0], -d[1])) / (2 * dx)
+    return float(ki), float(ks)
 
 
 def initial_state(par: AMBParams, start: str, eq: dict | None):

@@ -14,8 +14,8 @@ except ConfigError as _err:
     raise WorkflowError(f"config.yaml: {_err}") from None
 
 #: config sections the nonlinear simulator depends on (all physics, no analysis settings)
-SIM_SECTIONS = ["seed", "table1", "geometry", "gravity_m_per_s2", "magnetics", "amplifier",
-                "controller", "selfsensing", "sensors", "simulation"]
+SIM_SECTIONS = ["seed", "table1", "geometry", "gravity_m_per_s2", "weight_share", "magnetics", "amplifier",
+                "controller", "selfsensing", "sensors", "converters", "simulation"]
 
 #: experiments simulated by default (all that the config defines)
 SIM_EXPERIMENTS = list(config["experiments"])
