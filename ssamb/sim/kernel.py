@@ -512,15 +512,15 @@ def _delayed(ring, n, delay_samples):
 
 
 @nb.njit(**_HOT)
-def _magnet_mmfs(st, p, z, lad, qtab, fm, dfm, fem, qm):
-    """Exact MMF, its slope and the eddy MMF of every magnet at the sample, plus the network
-    coupling :math:`Q\\Phi` (``XNET``; ``qm`` receives Q and its gradient)."""
+def _magnet_mmfs(st, p, z, qtab, fm, dfm, qm):
+    """Exact MMF and its slope of every magnet at the sample, plus the network coupling
+    :math:`Q\\Phi` (``XNET``; ``qm`` receives Q and its gradient). The eddy MMF is carried from
+    the integration (exact: a function of the fluxes and lagged fluxes)."""
     for j in range(4):
         gs = gap_sum(_disp(st[S_X], st[S_Y], j), p)
         f, df = mmf_update(st[S_PHI + j], gs, z, j, p)
         fm[j] = f
         dfm[j] = df
-        fem[j] = _eddy_mmf(st, lad, j, p)
     if p[P_XNET] > 0.5:
         _interp_q(qtab, p, st[S_X], st[S_Y], qm)
         for j in range(4):
@@ -597,12 +597,14 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
     fm = np.zeros(4)
     dfm = np.zeros(4)
     fem = np.zeros(4)
+    for j in range(4):
+        fem[j] = _eddy_mmf(st, lad, j, p)
     m1 = np.zeros(4)
     m2 = np.zeros(4)
     qm = np.zeros(30)
     for k in range(k0, k1):
         t = k * dt
-        _magnet_mmfs(st, p, z, lad, qtab, fm, dfm, fem, qm)
+        _magnet_mmfs(st, p, z, qtab, fm, dfm, qm)
         # ---------------- converters of the DSP ----------------
         for j in range(4):
             i_true = _coil_i(st[S_BLK + j], st[S_VOLT + j], fm[j], fem[j], ge, vs, n_turns, inv_den)
