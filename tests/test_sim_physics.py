@@ -14,7 +14,7 @@ from ssamb.sim import amb_params, simulate
 from ssamb.sim.controller import pid_discrete
 from ssamb.sim.dsp import adc, pid_step, trend_basis
 from ssamb.sim.eddy import fit_ladder, ladder_z, lamination_tau, lamination_z
-from ssamb.sim.kernel import S_SIZE, S_VY, S_Y, _rotor_step
+from ssamb.sim.kernel import S_SIZE, S_VY, S_Y, _exp_neg, _rotor_step
 from ssamb.sim.magnetics import MAX_PLAY, mmf, play_update, static_force
 from ssamb.sim.params import MU0, P_GRAV
 
@@ -301,6 +301,12 @@ def test_adc_quantises_within_half_step_and_clips(v, bits):
     if -10.0 + q < v < 10.0 - q:
         assert abs(out - v) <= q / 2 + 1e-12
     assert adc.py_func(v, 0.0, 0.0, 0.0) == v
+
+
+@given(x=st.floats(0.0, 5.0))
+def test_kernel_exp_matches_library(x):
+    """The ladder's polynomial exp(-x) is the library's to 2e-11 relative (exact branch above 0.5)."""
+    assert _exp_neg.py_func(x) == pytest.approx(math.exp(-x), rel=2e-11)
 
 
 @given(w=st.integers(4, 40), order=st.integers(0, 3))

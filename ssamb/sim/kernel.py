@@ -120,6 +120,23 @@ def _phi1(x):
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+def _exp_neg(x):
+    """``exp(-x)`` for ``x >= 0``: Taylor polynomial of degree 10 in Estrin form for x < 0.5
+    (relative error below 2e-11; a third of the latency of the library call), else ``math.exp``."""
+    if x >= 0.5:
+        return math.exp(-x)
+    x2 = x * x
+    x4 = x2 * x2
+    x8 = x4 * x4
+    p01 = 1.0 - x
+    p23 = 0.5 - x * (1.0 / 6.0)
+    p45 = (1.0 / 24.0) - x * (1.0 / 120.0)
+    p67 = (1.0 / 720.0) - x * (1.0 / 5040.0)
+    p89 = (1.0 / 40320.0) - x * (1.0 / 362880.0)
+    return p01 + x2 * p23 + x4 * (p45 + x2 * p67) + x8 * (p89 + x2 * (1.0 / 3628800.0))
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
 def _disp(x, y, j):
     """Rotor displacement towards magnet j (ypos, yneg, xpos, xneg)."""
     if j == 0:
@@ -186,7 +203,7 @@ def _segment_ladder(ph, v, f0, df, fe0, h, lad, j, p):
     inv_n = p[P_INV_N]
     r = p[P_R]
     nlad = int(p[P_NLAD])
-    e1 = math.exp(-h * p[P_LAD_INVTAU])
+    e1 = _exp_neg(h * p[P_LAD_INVTAU])
     tk = p[P_LAD_TAU]
     ek = e1
     a_sum = 0.0
