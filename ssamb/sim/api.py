@@ -442,5 +442,8 @@ def simulate(cfg: Mapping, experiment: str | None = None, options: SimOptions | 
         "delevitation_s": delevitation_time(data["t"], data["contact"], exp["start"]),
         "config_hash": config_hash(cfg), "coils": list(COILS),
     }
-    log.info("simulate %s: %.3f s simulated in %.3f s wall", experiment or "(arrays)", dur, time.perf_counter() - t_wall)
+    timing = f"simulate {experiment or '(arrays)'}: {dur:.3f} s simulated in {time.perf_counter() - t_wall:.3f} s wall"
+    log.info(timing)
+    if progress:            # timings go to stderr (the workflow's logs), never into the result
+        print(timing, file=sys.stderr)
     return SimResult(data=data, meta=meta, ripple=ripple, fine=fine_d)
