@@ -4,7 +4,9 @@
 
 Part 1 -- error of each estimator (``selfsensing.estimator``: lsq, peak) with the default
 converters (noise, quantisation, computation delay) in the loop: rms of y_ss - y_true in the
-99 um 11-50 Hz sweep and at rest (levitated, no excitation), and the delevitation time if any.
+99 um 11-50 Hz sweep (the experiment as configured, after its pre-roll) and at rest (from the
+levitated equilibrium at t = 0, no excitation), and the delevitation time if any (the error is
+taken up to it).
 
 Part 2 -- the evidence for the peak estimator's failure:
 
@@ -16,7 +18,8 @@ b. each estimator's sensitivity to the current it commands: the rotor clamped, a
    term in the volt-seconds; times the controller's gain there (A/m, with the estimate
    low-pass) it is the gain of the parasitic loop estimate -> command -> ripple -> estimate,
    which must stay well below 1;
-c. the closed-loop outcome with peak (delevitation time over 0.3 s at rest) as the suspects of
+c. the closed-loop outcome with peak (delevitation time over 0.3 s at rest, from the levitated
+   equilibrium at t = 0) as the suspects of
    the issue are removed one at a time: eddy currents, converter noise, computation delay, a
    lower estimate low-pass.
 
@@ -56,12 +59,12 @@ def part1(cfg) -> None:
         c = apply_overrides(cfg, {"selfsensing.estimator": est})
         sweep = simulate(c, "sweep", progress=False)
         n = int(0.3 * fs)
-        rest = simulate(c, duration_s=0.3, arrays={"r_y": np.zeros(n)}, progress=False)
+        rest = simulate(c, duration_s=0.3, arrays={"r_y": np.zeros(n)}, progress=False, settle_s=0.0)
         row = []
         for r in (sweep, rest):
             d = r.data
             t_end = r.meta["delevitation_s"] if r.meta["delevitation_s"] is not None else np.inf
-            keep = d["t"] < t_end
+            keep = d["t"] <= t_end
             row += [rms_um((d["y_ss"] - d["y_true"])[keep]), r.meta["delevitation_s"]]
         fmt = lambda v: "none" if v is None else f"{v:.3f}"   # noqa: E731
         print(f"   {est:10s} {row[0]:15.1f} {fmt(row[1]):>16s} {row[2]:14.1f} {fmt(row[3]):>15s}")
@@ -154,10 +157,10 @@ def part2c(cfg) -> None:
     print("2c. closed loop at rest, 0.3 s: delevitation time (none: levitates) and rms estimate error")
     for name, ov in cases:
         c = apply_overrides(cfg, {**peak, **ov})
-        r = simulate(c, duration_s=0.3, arrays={"r_y": np.zeros(n)}, progress=False)
+        r = simulate(c, duration_s=0.3, arrays={"r_y": np.zeros(n)}, progress=False, settle_s=0.0)
         dl = r.meta["delevitation_s"]
         d = r.data
-        keep = d["t"] < (dl if dl is not None else np.inf)
+        keep = d["t"] <= (dl if dl is not None else np.inf)
         print(f"    {name:34s} delevitation {'none' if dl is None else f'{dl:.4f} s':>9s}, "
               f"rms error {rms_um((d['y_ss'] - d['y_true'])[keep]):7.1f} um")
 

@@ -13,12 +13,14 @@ clipped to the code range); the analog noise is added before, by the kernel.
 
 DCM self-sensing (paper section 2.1, eq. (2))
 ----------------------------------------------
-The coil equation, without resistance and motion terms, is eq. (2) read as
-:math:`\Delta i = \Delta\lambda / L`: between two current samples the current changes by the
-volt-seconds the amplifier applied, :math:`\Lambda_k = \int_{t_0}^{t_k} v\,dt`, divided by the
-incremental inductance. The DSP knows :math:`\Lambda_k` exactly from its PWM timer (supply
-voltage, duty cycle of every period, the edges and the dead time) -- the duty and
-ripple-phase compensation. Over the last :math:`W` samples (``selfsensing.window_samples``) two
+The coil equation (1) without the motion term, read as eq. (2) over a sampling interval:
+:math:`L\,\Delta i = \Delta\Lambda`, the current changes by the volt-seconds the amplifier applied
+less the resistive drop, :math:`\Lambda_k = \int_{t_0}^{t_k} (v - R i)\,dt`, over the
+incremental inductance. The DSP knows :math:`\int v\,dt` exactly from its PWM timer (supply
+voltage, duty cycle of every period, the edges and the dead time) -- the duty and ripple-phase
+compensation -- and subtracts :math:`R i\,dt` with its calibrated resistance and the sampled
+current (trapezoidal). Without that term the drift :math:`R i` between two samples reads as
+ripple (see README, simulator notes). Over the last :math:`W` samples (``selfsensing.window_samples``) two
 estimators of :math:`a = 1/L` are available (``selfsensing.estimator``):
 
 ``lsq``
@@ -35,7 +37,7 @@ The airgap follows from eq. (2), :math:`2 g = \mu_0 N^2 A_p a - l_{eq}/\mu_r`,
 ``lowpass_order`` cascaded first-order sections. A window without ripple (an amplifier
 saturated at D = 0 or 1) or with :math:`a \le 0` holds the last estimate; so does an ``lsq``
 window whose rms residual exceeds ``residual_gate`` times the rms of the fitted ripple (a
-current step the model cannot explain), counted in the state ``S_SSREJ``.
+current step the model cannot explain), counted in the state ``D_REJ``.
 """
 from __future__ import annotations
 
