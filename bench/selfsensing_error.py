@@ -39,7 +39,7 @@ from ssamb.config import apply_overrides, load_config  # noqa: E402
 from ssamb.sim import amb_params, simulate  # noqa: E402
 from ssamb.sim.api import run_kernel  # noqa: E402
 from ssamb.sim.kernel import OUT_NAMES  # noqa: E402
-from ssamb.sim.statics import equilibrium, network_tables  # noqa: E402
+from ssamb.sim.statics import equilibrium, linear_stiffness, network_tables  # noqa: E402
 
 IDEAL = {"converters.current_noise_a": 0.0, "converters.current_adc_bits": 0,
          "converters.position_noise_m": 0.0, "converters.position_adc_bits": 0}
@@ -81,13 +81,13 @@ def controller_gain(cfg, f_hz) -> complex:
 
 def part2a(cfg) -> None:
     par = amb_params(cfg)
-    ki, ks = par.ki_ks()
+    ki, ks = linear_stiffness(par)          # the static model's own (series magnets + stator network)
     t1 = cfg["table1"]
     k_net = t1["pid_kp_a_per_m"] * ki - ks
     wn = math.sqrt(k_net / par.mass_kg)
     zeta = t1["pid_kd_a_s_per_m"] * ki / (2 * math.sqrt(k_net * par.mass_kg))
     print("2a. the Table 1 loop, gains in A/m (controller output = differential current)")
-    print(f"    ki = {ki:.1f} N/A, ks = {ks:.3g} N/m: Kp ki - ks = {k_net:.3g} N/m, natural frequency "
+    print(f"    ki = {ki:.1f} N/A, ks = {ks:.3g} N/m (levitated, network on): Kp ki - ks = {k_net:.3g} N/m, natural frequency "
           f"{wn / 2 / math.pi:.0f} Hz, damping {zeta:.2f}")
     f = np.logspace(0, 4, 20000)
     s = 2j * np.pi * f
