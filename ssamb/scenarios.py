@@ -33,8 +33,8 @@ __all__ = ["SIM_SECTIONS", "sim_config", "study_variants", "run_overrides", "run
            "CHAIN", "run_prefix"]
 
 #: config sections the nonlinear simulator depends on (all physics, no analysis settings)
-SIM_SECTIONS = ("seed", "table1", "geometry", "gravity_m_per_s2", "magnetics", "amplifier", "controller",
-                "selfsensing", "sensors", "simulation")
+SIM_SECTIONS = ("seed", "table1", "geometry", "gravity_m_per_s2", "weight_share", "magnetics", "amplifier",
+                "controller", "selfsensing", "sensors", "converters", "simulation")
 
 _NAME = re.compile(r"^[A-Za-z0-9_.=+-]+$")
 

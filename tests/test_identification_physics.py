@@ -2,8 +2,9 @@
 
 Linearised about the levitated operating point, one axis of the plant is
 y / i_c = ki / (m s^2 - ks), with i_c the differential control current ((i_ypos - i_yneg)/2)
-and ki, ks the analytic stiffnesses of :meth:`AMBParams.ki_ks` at the gravity-compensating
-control current. Tolerances: the open-loop unstable pole sqrt(ks/m) within 3 %, the frequency
+and ki, ks the stiffnesses of the simulator's static model at the levitated equilibrium
+(:func:`ssamb.sim.statics.linear_stiffness`: the series magnets of :meth:`AMBParams.ki_ks` plus the
+stator network's coupling, which adds about 19 % of negative stiffness). Tolerances: the open-loop unstable pole sqrt(ks/m) within 3 %, the frequency
 response within 10 % between 30 and 150 Hz. Justification: the data are nonlinear -- the rotor
 moves +-30 um (ks varies with (y/g)^2, ~1 %), the iron path and eddy currents add a few percent
 to the reluctance, the current samples carry the PWM ripple -- and an identified 9th-order model
@@ -18,6 +19,7 @@ from ssamb.channels import structure
 from ssamb.config import load_config
 from ssamb.identification import identify, subsystem_io
 from ssamb.sim import amb_params, simulate
+from ssamb.sim.statics import linear_stiffness
 
 pytestmark = pytest.mark.slow  # simulates and identifies the plant (about 20 s)
 
@@ -29,8 +31,7 @@ def plant_and_physics():
     est = simulate(cfg, "id_pulses", duration_s=0.5).data
     u, y, ins, outs = subsystem_io(est, "plant", "differential")
     model = identify(u, y, 9, "N4SID", par.fs_hz, ins, outs, input_directions=structure("plant").input_directions)
-    u_op = simulate(cfg, duration_s=0.001, arrays={"r_y": np.zeros(83)}, settle_s=0.0).meta["equilibrium"]["u_y"]
-    ki, ks = par.ki_ks(u_op)
+    ki, ks = linear_stiffness(par)
     return model, par, ki, ks
 
 

@@ -11,6 +11,11 @@ import pytest
 from ssamb.config import ConfigError, apply_overrides, load_config, validate_config
 from ssamb.io import load_npz
 from ssamb.sim import amb_params, simulate
+from ssamb.sim.kernel import S_IREF, S_IREFN, S_SIZE, _control
+from ssamb.sim.statics import equilibrium, network_tables, static_fluxes, static_forces
+
+IDEAL_CONVERTERS = {"converters.current_noise_a": 0.0, "converters.current_adc_bits": 0,
+                    "converters.position_noise_m": 0.0, "converters.position_adc_bits": 0}
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +35,13 @@ def test_open_loop_unstable_falls_on_backup_bearing(cfg):
 
 
 def test_levitation_from_rest_lifts_off_and_settles(cfg):
-    """Controller on from rest: lift-off, then x and y settle within 5 um of the references."""
+    """Controller on from rest, the DSP's converters in the loop (default noise, 12-bit
+    quantisation, one sample of computation delay): lift-off, no touchdown, and the rotor settles
+    near the references. Bound: the self-sensed loop jitters with the converter noise (about
+    0.16 um/sqrt(Hz) of DCM estimate noise, amplified by the Table 1 loop's sensitivity peak),
+    measured 5-10 um rms on y; x runs on the probe (0.2 um noise) and stays within 2 um."""
+    conv = cfg["converters"]
+    assert conv["current_noise_a"] > 0 and conv["current_adc_bits"] > 0 and conv["computation_delay_samples"] == 1
     res = simulate(cfg, "levitate")
     d = res.data
     clearance = cfg["table1"]["backup_clearance_m"]
@@ -38,37 +49,111 @@ def test_levitation_from_rest_lifts_off_and_settles(cfg):
     lifted = np.flatnonzero(d["contact"] < 0.5)
     assert lifted.size and d["t"][lifted[0]] < 0.05        # lifts off quickly
     assert res.meta["delevitation_s"] is None                # and does not touch again
-    tail = d["t"] > d["t"][-1] - 0.05
-    assert np.max(np.abs(d["x_true"][tail] - d["r_x"][tail])) < 5e-6
-    assert np.max(np.abs(d["y_true"][tail] - d["r_y"][tail])) < 5e-6
+    tail = d["t"] > d["t"][-1] - 0.1
+    assert np.sqrt(np.mean((d["x_true"][tail] - d["r_x"][tail]) ** 2)) < 2e-6
+    assert np.sqrt(np.mean((d["y_true"][tail] - d["r_y"][tail]) ** 2)) < 20e-6
+    assert abs(np.mean(d["y_true"][tail] - d["r_y"][tail])) < 5e-6
+    q = 2 * conv["current_adc_range_a"] / 2 ** conv["current_adc_bits"]
+    assert np.allclose(d["i_ypos"] / q, np.round(d["i_ypos"] / q), atol=1e-6)   # logged = converter codes
+
+
+def test_multisine_tracked_with_converter_noise(cfg):
+    """The paper's 100 um multisine (5-26 Hz) with the default converters: no delevitation, and
+    the rotor follows the reference as the noise-free loop does, up to the jitter the converter
+    noise adds (the levitation test's 5-10 um; 15 um rms bounds it). The noise-free loop's own
+    tracking error is the Table 1 loop's phase lag at up to 26 Hz."""
+    ideal = simulate(apply_overrides(cfg, IDEAL_CONVERTERS), "multisine", duration_s=1.0, progress=False)
+    res = simulate(cfg, "multisine", duration_s=1.0, progress=False)
+    d = res.data
+    assert res.meta["delevitation_s"] is None
+    assert np.max(np.abs(d["r_y"])) > 50e-6
+    assert np.sqrt(np.mean((d["y_true"] - ideal.data["y_true"]) ** 2)) < 15e-6
+    assert np.corrcoef(d["y_true"], d["r_y"])[0, 1] > 0.95
 
 
 def test_dcm_tracks_true_position_static_and_slow_move(cfg):
-    """DCM estimate vs true y.
+    """DCM estimate vs true y with ideal converters (the estimator's own error).
 
-    Bound: the estimator is calibrated at three clamped positions, so the static error is the
-    calibration residual plus the ripple-fit error (< 1 um); during a 5 Hz, 50 um move the
-    estimate lags by its window (60 us) plus the 800 Hz second-order low-pass (~400 us), i.e.
-    about 0.46 ms x 1.6 mm/s = 0.7 um, so 2 um bounds both with margin.
+    Bound: the estimator is calibrated at three clamped positions; what remains is the
+    lamination eddy currents' distortion of the ripple, which depends on the sampling phases of
+    each window (measured about 2 um rms in the loop), and during a 5 Hz, 50 um move the lag of
+    the window (84 us) plus the 800 Hz second-order low-pass (~400 us), 0.5 ms x 1.6 mm/s = 0.8
+    um; 5 um bounds both.
     """
+    c = apply_overrides(cfg, IDEAL_CONVERTERS)
     fs = cfg["controller"]["fs_hz"]
     n = int(0.4 * fs)
     t = np.arange(n) / fs
-    static = simulate(cfg, duration_s=0.1, arrays={"r_y": np.zeros(int(0.1 * fs))})
+    static = simulate(c, duration_s=0.1, arrays={"r_y": np.zeros(int(0.1 * fs))})
     err = static.data["y_ss"] - static.data["y_true"]
-    assert np.max(np.abs(err)) < 1e-6
+    assert np.sqrt(np.mean(err**2)) < 5e-6
     ry = 50e-6 * np.sin(2 * np.pi * 5.0 * t)
-    moving = simulate(cfg, duration_s=0.4, arrays={"r_y": ry})
+    moving = simulate(c, duration_s=0.4, arrays={"r_y": ry})
     err = moving.data["y_ss"] - moving.data["y_true"]
     assert np.max(np.abs(moving.data["y_true"])) > 40e-6      # it really moved
-    assert np.max(np.abs(err)) < 2e-6
+    assert np.sqrt(np.mean(err**2)) < 5e-6
+
+
+def test_peak_estimator_holds_without_eddy_currents(cfg):
+    """The paper's peak DCM (max/min of the sampled ripple, volt-second compensated) levitates
+    the Table 1 loop when the coil is a plain inductor; the README explains why the lamination
+    eddy currents make it run away (bench/selfsensing_error.py)."""
+    c = apply_overrides(cfg, {"selfsensing.estimator": "peak", "magnetics.eddy_currents": False})
+    fs = cfg["controller"]["fs_hz"]
+    res = simulate(c, duration_s=0.2, arrays={"r_y": np.zeros(int(0.2 * fs))})
+    assert res.meta["delevitation_s"] is None
+    err = res.data["y_ss"] - res.data["y_true"]
+    assert np.sqrt(np.mean(err**2)) < 15e-6
+
+
+def test_computation_delay_applies_command_next_sample(cfg):
+    """With one sample of computation delay the amplifiers see the reference computed at the
+    previous sample; without it, at once."""
+    par = amb_params(cfg)
+    drive = np.zeros((6, 2))
+    drive[3] = (0.2, 0.5)                                # current injection on y at samples 0, 1
+    rings = np.zeros((2, 256))
+    for delay, expect in ((1, (3.0, 3.2)), (0, (3.2, 3.5))):
+        p = par.pack(CDELAY=float(delay), PID_ON=0.0)
+        st_ = np.zeros(S_SIZE)
+        st_[S_IREFN:S_IREFN + 4] = 3.0
+        seen = []
+        for k in range(2):
+            _control.py_func(st_, p, np.zeros(9), rings, k, par.fs_hz, 0.0, drive, 0.0)
+            seen.append(st_[S_IREF])
+        assert seen == pytest.approx(expect)
+
+
+def test_weight_share_sets_the_static_load(cfg):
+    """The equilibrium balances weight_share x m g; the rotor mass stays the dynamic mass."""
+    for share in (1.0, 0.5, 0.0):
+        c = apply_overrides(cfg, {"weight_share": share})
+        par = amb_params(c)
+        packed = par.pack()
+        qtab = network_tables(par)
+        eq = equilibrium(par, packed, qtab)
+        _, fy = static_forces(packed, qtab, static_fluxes(packed, qtab, eq["currents_a"]))
+        assert fy == pytest.approx(share * par.mass_kg * par.gravity_m_per_s2, abs=1e-6)
+        assert par.mass_kg == cfg["table1"]["mass_kg"]
+    assert abs(eq["u_y"]) < 0.05                          # no weight: (almost) no control current
 
 
 def test_calibration_is_accurate(cfg):
+    """Three clamped positions on a straight line: eq. (2) is linear in the airgap, so the
+    residual is the converter noise averaged over 833 samples (<< 1 um) plus the slight
+    curvature the eddy currents add."""
     res = simulate(cfg, duration_s=0.01, arrays={"r_y": np.zeros(833)}, settle_s=0.0)
     cal = res.meta["selfsensing_calibration"]
-    assert cal["max_residual_m"] < 1e-7
+    assert cal["max_residual_m"] < 1e-6
     assert 0.8 < cal["gain"] < 1.2          # eq. (2) is nearly right without calibration
+
+
+def test_meta_is_reproducible(cfg):
+    """No wall-clock time in the meta: the same inputs give the same bytes."""
+    a = simulate(cfg, duration_s=0.002, arrays={"r_y": np.zeros(166)}, settle_s=0.0)
+    b = simulate(cfg, duration_s=0.002, arrays={"r_y": np.zeros(166)}, settle_s=0.0)
+    assert "wall_time_s" not in a.meta
+    assert json.dumps(a.meta, sort_keys=True, default=str) == json.dumps(b.meta, sort_keys=True, default=str)
 
 
 def test_same_config_same_bits(cfg):

@@ -8,18 +8,20 @@ with the Table 1 gains (output in amperes of differential current per metre of p
 and a derivative low-pass at ``controller.derivative_filter_hz`` (an assumption: the paper does
 not state one, and an unfiltered derivative at 83.3 kHz would amplify sensor noise by
 ``K_D f_s``). It is discretised with the bilinear (Tustin) transform at the controller rate.
-The simulator executes exactly the discrete state-space returned by :func:`pid_discrete`, and
-the closed-loop LTI assembly uses the same object, so both stages share one controller.
+The simulator executes :func:`pid_discrete` (in the parallel form of
+:func:`pid_kernel_coefficients`, with the output clamp and conditional integration), and the
+closed-loop LTI assembly uses the same object, so both stages share one controller.
 """
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Mapping
 
 import control
 import numpy as np
 
-__all__ = ["pid_continuous", "pid_discrete", "pid_matrices"]
+__all__ = ["pid_continuous", "pid_discrete", "pid_kernel_coefficients"]
 
 
 def pid_continuous(cfg: Mapping) -> control.TransferFunction:
@@ -38,8 +40,34 @@ def pid_discrete(cfg: Mapping) -> control.StateSpace:
     return cd
 
 
-def pid_matrices(cfg: Mapping) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(A, B, C, D)`` of :func:`pid_discrete` as float arrays (for the compiled kernel)."""
-    sys = pid_discrete(cfg)
-    return (np.asarray(sys.A, float), np.asarray(sys.B, float).ravel(),
-            np.asarray(sys.C, float).ravel(), float(np.asarray(sys.D).item()))
+def pid_kernel_coefficients(cfg: Mapping) -> dict:
+    r"""The compiled kernel's form of :func:`pid_discrete` (so that both run one controller).
+
+    The kernel keeps the proportional, integral and derivative parts apart (it integrates
+    conditionally when the output clamps), :math:`C(z) = K_P + \tfrac{K_I T}{2}\frac{z+1}{z-1}
+    + b_d\frac{z-1}{z-a_d}`. The coefficients are read off :func:`pid_discrete` by partial
+    fractions: :math:`a_d` is its pole other than 1, the residue at 1 is :math:`K_I T`, the
+    residue at :math:`a_d` is :math:`b_d (a_d - 1)`, and :math:`C(\infty) = K_P + K_I T/2 + b_d`.
+    Returns ``{"kp", "ki_half", "a_d", "b_d"}`` (cached on the five numbers that define the PID).
+    """
+    t1, ctl = cfg["table1"], cfg["controller"]
+    return dict(_kernel_coefficients(t1["pid_kp_a_per_m"], t1["pid_ki_a_per_m_s"], t1["pid_kd_a_s_per_m"],
+                                     ctl["derivative_filter_hz"], ctl["fs_hz"]))
+
+
+@lru_cache(maxsize=64)
+def _kernel_coefficients(kp: float, ki: float, kd: float, f_d: float, fs: float) -> tuple:
+    cfg = {"table1": {"pid_kp_a_per_m": kp, "pid_ki_a_per_m_s": ki, "pid_kd_a_s_per_m": kd},
+           "controller": {"derivative_filter_hz": f_d, "fs_hz": fs}}
+    tf = control.ss2tf(pid_discrete(cfg))
+    num = np.asarray(tf.num[0][0], float)
+    den = np.asarray(tf.den[0][0], float)
+    num, den = num / den[0], den / den[0]
+    poles = np.roots(den)
+    a_d = float(np.real(poles[np.argmax(np.abs(poles - 1.0))]))
+    res_1 = np.polyval(num, 1.0) / (1.0 - a_d)
+    res_d = np.polyval(num, a_d) / (a_d - 1.0)
+    ki_half = res_1 / 2.0
+    b_d = res_d / (a_d - 1.0)
+    c_inf = num[0] if len(num) == len(den) else 0.0
+    return (("kp", float(c_inf - ki_half - b_d)), ("ki_half", float(ki_half)), ("a_d", a_d), ("b_d", float(b_d)))

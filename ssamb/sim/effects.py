@@ -14,7 +14,8 @@ unbalance            speed_hz, mass_ecc_kgm, [phase_rad]         rotating force 
 static_load          fx_n, fy_n                                  constant external force
 sensor_gain          axis, gain                                  scale error of the position measurement
 amplifier_deadtime   deadtime_s                                  turn-on delay of every PWM pulse
-cross_coupling       coefficient                                 flux shared between adjacent magnets
+cross_coupling       coefficient                                 extra flux shared between adjacent magnets
+                                                                 (on top of the stator network's, forces)
 external_force       file (CSV: t, fx_n, fy_n) or t/fx_n/fy_n    arbitrary force, linear interpolation
 ==================== =========================================== ======================================
 """

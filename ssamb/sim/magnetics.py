@@ -29,33 +29,29 @@ so that a large loop has coercivity :math:`H_c` and positive area (energy loss),
 loops (PWM ripple) are thinner. It is applied over the whole iron length (a simplification:
 the pole legs carry the largest flux density).
 
-Eddy currents (switchable) -- an equivalent short-circuited one-turn winding of conductance
-:math:`g_e` links the flux, so that the coil and eddy MMFs satisfy
-:math:`N i - g_e \dot\Phi = \mathcal{F}_m`. With the coil equation
-:math:`v = R i + N\dot\Phi` (Faraday) the flux obeys
-
-.. math:: \dot\Phi = \frac{N v - R \mathcal{F}_m}{N^2 + g_e R}, \qquad
-          i = \frac{g_e v + N\mathcal{F}_m}{g_e R + N^2},
-
-a single state per magnet; :math:`g_e = 0` is the eddy-free circuit :math:`i = \mathcal F_m/N`.
-The flux lags the current by the first-order corner :math:`\partial\mathcal F_m/\partial\Phi / g_e`.
+Eddy currents (switchable) -- the coil must also supply the eddy MMF of the laminations,
+:math:`N i = \mathcal F_m(\Phi) + \mathcal F_{eddy}`, with the coil equation
+:math:`v = R i + N\dot\Phi` (Faraday). The default model is the lamination diffusion impedance as
+a fitted ladder of lagged fluxes (:mod:`ssamb.sim.eddy`); the variant ``shorted_turn`` is one
+short-circuited turn of conductance :math:`g_e`, :math:`\mathcal F_{eddy} = g_e\dot\Phi`, for
+which :math:`\dot\Phi = (N v - R \mathcal F_m)/(N^2 + g_e R)` and
+:math:`i = (g_e v + N\mathcal F_m)/(g_e R + N^2)`. The kernel (:mod:`ssamb.sim.kernel`)
+integrates both.
 
 Force -- Maxwell stress on both pole faces, projected on the magnet axis,
 :math:`F = 2 \frac{B^2 A_p}{2\mu_0}\cos\alpha = \Phi^2\cos\alpha/(\mu_0 A_p)`.
 """
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
-from .params import (MU0, P_AP, P_COSA, P_FE_C1, P_FE_C2, P_G0, P_GAPK, P_GE, P_HC, P_HYST,
-                     P_HYST_DF, P_INV_AP, P_INV_BKNEE, P_INV_MU0MUR, P_INV_PHIK, P_LFE, P_N,
-                     P_NPLAY, P_PEXP, P_PLAY_INVR0, P_PLAY_R0, P_R, P_SAT)
+from .params import (MU0, P_AP, P_COSA, P_FE_C1, P_FE_C2, P_G0, P_GAPK, P_HC, P_HYST,
+                     P_HYST_DF, P_INV_AP, P_INV_PHIK, P_LFE, P_N,
+                     P_NPLAY, P_PEXP, P_PLAY_INVR0, P_PLAY_R0, P_SAT)
 
-__all__ = ["h_anhysteretic", "mmf_anhysteretic", "mmf", "mmf_update", "flux_from_current", "force_from_flux",
-           "coil_current", "play_update", "MAX_PLAY"]
+__all__ = ["mmf_anhysteretic", "mmf", "mmf_update", "flux_from_current", "force_from_flux",
+           "play_update", "gap_sum", "static_force", "MAX_PLAY"]
 
 MAX_PLAY = 16
 
@@ -79,16 +75,6 @@ def _ipow(x, n):
         x *= x
         n >>= 1
     return r
-
-
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
-def h_anhysteretic(b, p):
-    """Anhysteretic field H (A/m) and its derivative dH/dB for flux density ``b`` (T)."""
-    k = p[P_INV_MU0MUR]
-    if p[P_SAT] > 0.0:
-        q = _ipow(abs(b) * p[P_INV_BKNEE], int(p[P_PEXP]))
-        return k * b * (1.0 + q), k * (1.0 + (p[P_PEXP] + 1.0) * q)
-    return k * b, k
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
@@ -174,15 +160,6 @@ def play_update(phi, z, p):
                 z[k] = b - r
             elif z[k] > b + r:
                 z[k] = b + r
-
-
-@nb.njit(cache=True, error_model="numpy", fastmath=True)
-def coil_current(phi, gsum, z, v, p):
-    """Coil current (A) for flux ``phi`` and coil voltage ``v``: :math:`(g_e v + N F_m)/(g_e R + N^2)`."""
-    f, _ = mmf(phi, gsum, z, p)
-    n = p[P_N]
-    ge = p[P_GE]
-    return (ge * v + n * f) / (ge * p[P_R] + n * n)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=True)

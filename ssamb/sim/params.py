@@ -31,26 +31,37 @@ import numpy as np
 
 MU0 = 4e-7 * math.pi  # H/m (the SI value to 1e-9 relative; the paper's mu_0)
 
-__all__ = ["MU0", "AMBParams", "amb_params"]
+__all__ = ["MU0", "AMBParams", "amb_params", "ESTIMATORS", "EDDY_MODELS"]
+
+#: self-sensing estimators (``selfsensing.estimator``), kernel code = index
+ESTIMATORS = ("lsq", "peak")
+#: eddy-current models (``magnetics.eddy_model``)
+EDDY_MODELS = ("ladder", "shorted_turn")
+MAX_LADDER = 6       # kernel limit on ladder sections (ssamb.sim.eddy.MAX_LADDER)
 
 # --- indices into the packed parameter array read by the kernel -------------------------
 _names = [
     "N", "R", "GE", "V", "TPWM", "KP_PA", "KI_PA", "DMIN", "DMAX", "IREF_MAX", "IBIAS",
     "AP", "G0", "COSA", "MASS", "GRAV", "CLEAR", "KC", "CC",
     "SAT", "BKNEE", "PEXP", "HYST", "HC", "NPLAY", "RMAX", "MUR",
-    "L_POLE", "L_BACK", "A_BACK", "L_ROT", "A_ROT", "LEQ",
-    "FS", "SUBSTEPS", "UMAX",
+    "LEQ", "FS", "SUBSTEPS", "UMAX", "INV_N", "INV_MASS", "FORCE_K",
     "PID_KP", "PID_KI_HALF", "PID_AD", "PID_BD",
-    "SS_W", "SS_ALPHA", "SS_ORDER", "SS_POLY", "SS_GATE", "SS_GAIN", "SS_OFF", "SS_MIN_DD",
+    "SS_W", "SS_ALPHA", "SS_ORDER", "SS_GATE", "SS_GAIN", "SS_OFF", "SS_EST", "SS_MIN", "SS_R",
     "XS_BW",
     "DELAY_X", "DELAY_Y", "GAIN_X", "GAIN_Y", "DEADTIME", "XCOUP",
     "PID_ON", "CLAMP", "CLAMP_X", "CLAMP_Y", "SS_IDEAL",
+    # converters of the DSP: quantisation step and largest code (0 step: ideal), computation delay
+    "I_Q", "I_INVQ", "I_CMAX", "X_Q", "X_INVQ", "X_CMAX", "CDELAY",
+    # eddy ladder: sections, 1/tau_1, and the MMF coefficients c_k = R_fe a_k (A/Wb)
+    "NLAD", "LAD_INVTAU", "LAD_TAU",
+    # cross-coupling network (0/1) and the half width of its tables (m)
+    "XNET", "QHALF",
     # derived constants (reciprocals precomputed for the kernel)
-    "INV_MU0MUR", "INV_BKNEE", "INV_AP", "INV_ABACK", "INV_AROT", "GAPK", "LFE",
+    "INV_AP", "GAPK", "LFE",
+    "FE_C1", "FE_C2", "INV_PHIK", "HYST_DF",
 ]
+_names += [f"LAD_C{k}" for k in range(MAX_LADDER)]
 _names += [f"PLAY_R{k}" for k in range(16)] + [f"PLAY_INVR{k}" for k in range(16)]
-# appended (existing indices stay put): iron MMF constants and the elastic hysteresis slope
-_names += ["FE_C1", "FE_C2", "INV_PHIK", "HYST_DF"]
 for _i, _n in enumerate(_names):
     globals()["P_" + _n] = _i
 P_SIZE = len(_names)
@@ -63,7 +74,10 @@ class AMBParams:
 
     turns: int                   # N, turns per electromagnet
     r_coil_ohm: float
-    eddy_conductance_s: float    # g_e = 1/r_e of the equivalent shorted one-turn winding (0: off)
+    eddy_model: str              # "ladder", "shorted_turn" or "off"
+    eddy_conductance_s: float    # g_e of the shorted-turn model (0 unless eddy_model is shorted_turn)
+    ladder_weights: tuple        # a_k of the lamination ladder (ssamb.sim.eddy); empty unless ladder
+    ladder_taus_s: tuple         # tau_k of the ladder (s)
     v_supply_v: float
     f_pwm_hz: float
     pa_kp_per_a: float
@@ -75,8 +89,11 @@ class AMBParams:
     pole_area_m2: float
     airgap_m: float
     pole_half_angle_rad: float
+    pole_sequence: str
+    cross_coupling: bool
     mass_kg: float
     gravity_m_per_s2: float
+    weight_share: float          # share of the rotor weight this bearing carries
     clearance_m: float
     contact_stiffness_n_per_m: float
     contact_damping_n_s_per_m: float
@@ -91,23 +108,34 @@ class AMBParams:
     l_pole_m: float              # both pole legs, at the pole area
     l_back_m: float
     a_back_m2: float
-    l_rotor_m: float
+    l_rotor_arc_m: float         # journal arc over one pole pitch
+    l_rotor_radial_m: float      # both radial journal legs
     a_rotor_m2: float
     fs_hz: float
     substeps: int
     u_max_a: float
-    derivative_filter_hz: float
-    pid_kp: float
-    pid_ki: float
-    pid_kd: float
+    pid_coefficients: dict       # the kernel's form of controller.pid_discrete (kp, ki_half, a_d, b_d)
+    ss_estimator: str
     ss_window: int
     ss_lowpass_hz: float
     ss_lowpass_order: int
     ss_trend_order: int
     ss_gate: float
     x_bandwidth_hz: float
+    current_noise_a: float
+    current_adc_bits: int
+    current_adc_range_a: float
+    position_noise_m: float
+    position_adc_bits: int
+    position_adc_range_m: float
+    computation_delay_samples: int
 
     # ---- derived quantities -------------------------------------------------------------
+    @property
+    def l_rotor_m(self) -> float:
+        """Journal path of one magnet: the arc and both radial legs."""
+        return self.l_rotor_arc_m + self.l_rotor_radial_m
+
     @property
     def l_eq_m(self) -> float:
         r"""Iron path expressed as an equivalent length at the pole area, :math:`\sum l_s A_p/A_s`."""
@@ -119,11 +147,21 @@ class AMBParams:
         return self.l_pole_m + self.l_back_m + self.l_rotor_m
 
     @property
+    def r_iron_a_per_wb(self) -> float:
+        r"""Linear reluctance of the whole iron loop, :math:`\mathcal R_{fe} = \sum_s l_s/(\mu_0\mu_r A_s)`."""
+        return self.l_eq_m / (MU0 * self.mu_r * self.pole_area_m2)
+
+    @property
     def cos_alpha(self) -> float:
         return math.cos(self.pole_half_angle_rad)
 
+    @property
+    def weight_n(self) -> float:
+        """Static load of the rotor weight on this bearing, ``weight_share`` m g (N, along -y)."""
+        return self.weight_share * self.mass_kg * self.gravity_m_per_s2
+
     def inductance_h(self, displacement_m: float = 0.0) -> float:
-        r"""Small-signal coil inductance of one magnet, saturation and hysteresis off.
+        r"""Small-signal coil inductance of one magnet, saturation, hysteresis and eddy currents off.
 
         :math:`L = \mu_0 N^2 A_p / (2 (g_0 - \xi\cos\alpha) + l_{eq}/\mu_r)` (paper eq. (1)).
         """
@@ -161,49 +199,77 @@ class AMBParams:
 
     def pack(self, **overrides) -> np.ndarray:
         """The flat parameter array of the compiled kernel (effects and modes set via overrides)."""
+        vals = {**self._pack_core(), **self._pack_dsp(), **self._pack_iron()}
+        for k, v in overrides.items():
+            if k not in vals:
+                raise KeyError(f"unknown kernel parameter '{k}'")
+            vals[k] = v
         p = np.zeros(P_SIZE)
-        dt = 1.0 / self.fs_hz
-        wd = 2 * math.pi * self.derivative_filter_hz
-        # Tustin discretisation of  Kd s / (1 + s/wd):  D_k = a_d D_{k-1} + b_d (e_k - e_{k-1})
-        c = 2.0 / dt
-        a_d = (c / wd - 1.0) / (c / wd + 1.0)
-        b_d = self.pid_kd * c / (1.0 + c / wd)
-        vals = dict(
+        for k, v in vals.items():
+            p[globals()["P_" + k]] = float(v)
+        return p
+
+    def _pack_core(self) -> dict:
+        """Amplifiers, rotor, contact, geometry and the effect/mode switches."""
+        return dict(
             N=self.turns, R=self.r_coil_ohm, GE=self.eddy_conductance_s, V=self.v_supply_v,
             TPWM=1.0 / self.f_pwm_hz, KP_PA=self.pa_kp_per_a, KI_PA=self.pa_ki_per_a,
             DMIN=self.duty_min, DMAX=self.duty_max, IREF_MAX=self.i_ref_max_a, IBIAS=self.i_bias_a,
             AP=self.pole_area_m2, G0=self.airgap_m, COSA=self.cos_alpha, MASS=self.mass_kg,
-            GRAV=self.gravity_m_per_s2, CLEAR=self.clearance_m, KC=self.contact_stiffness_n_per_m,
-            CC=self.contact_damping_n_s_per_m, SAT=float(self.saturation), BKNEE=self.b_knee_t,
-            PEXP=self.saturation_exponent, HYST=float(self.hysteresis), HC=self.coercive_field_a_per_m,
-            NPLAY=self.n_play, RMAX=self.play_width_max_t, MUR=self.mu_r,
-            L_POLE=self.l_pole_m, L_BACK=self.l_back_m, A_BACK=self.a_back_m2,
-            L_ROT=self.l_rotor_m, A_ROT=self.a_rotor_m2, LEQ=self.l_eq_m,
+            GRAV=self.weight_n / self.mass_kg, CLEAR=self.clearance_m, KC=self.contact_stiffness_n_per_m,
+            CC=self.contact_damping_n_s_per_m, MUR=self.mu_r, LEQ=self.l_eq_m,
             FS=self.fs_hz, SUBSTEPS=self.substeps, UMAX=self.u_max_a,
-            PID_KP=self.pid_kp, PID_KI_HALF=self.pid_ki * dt / 2.0, PID_AD=a_d, PID_BD=b_d,
-            SS_W=self.ss_window, SS_ORDER=self.ss_lowpass_order, SS_POLY=self.ss_trend_order, SS_GATE=self.ss_gate, SS_ALPHA=1.0 - math.exp(-2 * math.pi * self.ss_lowpass_hz * dt),
-            SS_GAIN=1.0, SS_OFF=0.0, SS_MIN_DD=0.02,
+            INV_N=1.0 / self.turns, INV_MASS=1.0 / self.mass_kg,
+            FORCE_K=self.cos_alpha / (MU0 * self.pole_area_m2),   # force per squared flux, Phi^2 cos(a)/(mu0 A_p)
             XS_BW=2 * math.pi * self.x_bandwidth_hz,
             DELAY_X=0.0, DELAY_Y=0.0, GAIN_X=1.0, GAIN_Y=1.0, DEADTIME=0.0, XCOUP=0.0,
             PID_ON=1.0, CLAMP=0.0, CLAMP_X=0.0, CLAMP_Y=0.0, SS_IDEAL=0.0,
+            XNET=float(self.cross_coupling), QHALF=1.25 * self.clearance_m,
         )
-        vals.update(
-            INV_MU0MUR=1.0 / (MU0 * self.mu_r), INV_BKNEE=1.0 / self.b_knee_t,
-            INV_AP=1.0 / self.pole_area_m2, INV_ABACK=1.0 / self.a_back_m2,
-            INV_AROT=1.0 / self.a_rotor_m2, GAPK=1.0 / (MU0 * self.pole_area_m2),
-            LFE=self.l_iron_total_m,
+
+    def _pack_dsp(self) -> dict:
+        """PID (Tustin, see :mod:`ssamb.sim.controller`), self-sensing and converters."""
+        dt = 1.0 / self.fs_hz
+        pid = self.pid_coefficients
+        vals = dict(
+            PID_KP=pid["kp"], PID_KI_HALF=pid["ki_half"], PID_AD=pid["a_d"], PID_BD=pid["b_d"],
+            SS_W=self.ss_window, SS_ORDER=self.ss_lowpass_order, SS_GATE=self.ss_gate,
+            SS_ALPHA=1.0 - math.exp(-2 * math.pi * self.ss_lowpass_hz * dt),
+            SS_GAIN=1.0, SS_OFF=0.0, SS_EST=ESTIMATORS.index(self.ss_estimator), SS_MIN=1e-3,
+            SS_R=self.r_coil_ohm,      # the DSP's coil resistance (its calibration)
+            CDELAY=float(self.computation_delay_samples),
         )
-        # iron MMF Phi (c1 + c2 q), q = (|Phi|/(A_p B_k))^p: sum over the sections s of
-        # l_s/(mu0 mu_r A_s) and of the same times (A_p/A_s)^p (see magnetics.mmf_anhysteretic)
+        for key, bits, rng in (("I", self.current_adc_bits, self.current_adc_range_a),
+                               ("X", self.position_adc_bits, self.position_adc_range_m)):
+            vals[key + "_Q"] = 2.0 * rng / 2**bits if bits > 0 else 0.0
+            vals[key + "_INVQ"] = 2**bits / (2.0 * rng) if bits > 0 else 0.0
+            vals[key + "_CMAX"] = 2 ** (bits - 1) - 1 if bits > 0 else 0.0
+        return vals
+
+    def _pack_iron(self) -> dict:
+        """Saturation, hysteresis and eddy-current constants (see :mod:`ssamb.sim.magnetics`)."""
         pexp = int(self.saturation_exponent)
         ap = self.pole_area_m2
         sections = ((self.l_pole_m, ap), (self.l_back_m, self.a_back_m2), (self.l_rotor_m, self.a_rotor_m2))
         k_fe = 1.0 / (MU0 * self.mu_r)
-        vals.update(
+        vals = dict(
+            SAT=float(self.saturation), BKNEE=self.b_knee_t, PEXP=self.saturation_exponent,
+            HYST=float(self.hysteresis), HC=self.coercive_field_a_per_m, NPLAY=self.n_play,
+            RMAX=self.play_width_max_t,
+            INV_AP=1.0 / ap,
+            GAPK=1.0 / (MU0 * ap), LFE=self.l_iron_total_m,
+            # iron MMF Phi (c1 + c2 q), q = (|Phi|/(A_p B_k))^p: sums over the sections s of
+            # l_s/(mu0 mu_r A_s) and of the same times (A_p/A_s)^p (see magnetics.mmf_anhysteretic)
             FE_C1=sum(k_fe * l / a for l, a in sections),
             FE_C2=sum(k_fe * l / a * (ap / a) ** pexp for l, a in sections),
             INV_PHIK=1.0 / (ap * self.b_knee_t),
+            NLAD=len(self.ladder_weights),
+            LAD_INVTAU=1.0 / self.ladder_taus_s[0] if self.ladder_taus_s else 0.0,
+            LAD_TAU=self.ladder_taus_s[0] if self.ladder_taus_s else 0.0,
         )
+        for k in range(MAX_LADDER):
+            w = self.ladder_weights[k] if k < len(self.ladder_weights) else 0.0
+            vals[f"LAD_C{k}"] = self.r_iron_a_per_wb * w
         for k in range(16):
             r = self.play_width_max_t * (k + 1) / self.n_play
             vals[f"PLAY_R{k}"] = r
@@ -211,20 +277,47 @@ class AMBParams:
         # slope of the hysteresis MMF with every play operator elastic: sum_k l_fe H_c/(K r_k A_p)
         vals["HYST_DF"] = sum(self.l_iron_total_m * self.coercive_field_a_per_m / self.n_play
                               / vals[f"PLAY_R{k}"] / ap for k in range(self.n_play))
-        for k, v in overrides.items():
-            if k not in vals:
-                raise KeyError(f"unknown kernel parameter '{k}'")
-            vals[k] = v
-        for k, v in vals.items():
-            p[globals()["P_" + k]] = float(v)
-        return p
+        return vals
 
     def as_dict(self) -> dict:
         return asdict(self)
 
 
+def _eddy(cfg: Mapping, l_fe: float, ap: float, mu_r: float) -> dict:
+    """Eddy-current model parameters (``magnetics`` section): ladder fit or shorted turn.
+
+    Shorted turn (the classical lamination loss model): for laminations of thickness d and
+    conductivity sigma the eddy MMF per unit length is sigma d^2/12 dB/dt, so along the iron
+    path l_fe at flux Phi = B A_p: i_e = -(l_fe sigma d^2 / (12 A_p)) dPhi/dt = -g_e dPhi/dt.
+    Ladder: the lamination diffusion impedance fitted by :func:`ssamb.sim.eddy.fit_ladder`.
+    """
+    from .eddy import fit_ladder, lamination_tau
+
+    mag = cfg["magnetics"]
+    out = {"eddy_model": "off", "eddy_conductance_s": 0.0, "ladder_weights": (), "ladder_taus_s": ()}
+    if not mag["eddy_currents"]:
+        return out
+    d, sigma = mag["lamination_thickness_m"], mag["iron_conductivity_s_per_m"]
+    out["eddy_model"] = mag["eddy_model"]
+    if mag["eddy_model"] == "shorted_turn":
+        out["eddy_conductance_s"] = l_fe * sigma * d**2 / (12 * ap)
+    else:
+        w, t = fit_ladder(lamination_tau(mu_r, sigma, d), int(mag["eddy_ladder_order"]),
+                          float(mag["eddy_fit_max_hz"]))
+        out["ladder_weights"], out["ladder_taus_s"] = w, t
+    return out
+
+
+def _converters(cfg: Mapping) -> dict:
+    cv = cfg["converters"]
+    return {k: cv[k] for k in ("current_noise_a", "current_adc_bits", "current_adc_range_a", "position_noise_m",
+                               "position_adc_bits", "position_adc_range_m", "computation_delay_samples")}
+
+
 def amb_params(cfg: Mapping) -> AMBParams:
     """Build :class:`AMBParams` from a validated configuration dictionary."""
+    from .controller import pid_kernel_coefficients
+
     t1, geo, mag = cfg["table1"], cfg["geometry"], cfg["magnetics"]
     la = t1["axial_length_m"]
     ap = t1["pole_width_m"] * la
@@ -232,63 +325,33 @@ def amb_params(cfg: Mapping) -> AMBParams:
                                           "r_backiron_inner_m", "r_stator_outer_m"))
     pitch = 2 * math.pi / geo["n_poles"]  # angle between the two poles of one magnet (one pole pitch)
     l_pole = 2 * (rc - rp)
-    l_back = pitch * (rc + rs) / 2
-    a_back = (rs - rc) * la
-    l_rot = pitch * (rr + rj) / 2 + 2 * (rj - rr) / 2
-    a_rot = (rj - rr) * la
-    # Eddy currents: an equivalent shorted one-turn winding around the iron. For laminations of
-    # thickness d and conductivity sigma, the eddy MMF per unit length is sigma d^2/12 dB/dt
-    # (classical lamination loss model), so along the iron path l_fe at flux Phi = B A:
-    #   i_e = -(l_fe sigma d^2 / (12 A)) dPhi/dt = -g_e dPhi/dt.
-    l_fe = l_pole + l_back + l_rot
-    g_e = 0.0
-    if mag["eddy_currents"]:
-        d = mag["lamination_thickness_m"]
-        g_e = l_fe * mag["iron_conductivity_s_per_m"] * d**2 / (12 * ap)
+    ss = cfg["selfsensing"]
     return AMBParams(
         turns=int(t1["coil_turns"] * geo["coils_per_magnet"]),
         r_coil_ohm=t1["r_coil_ohm"],
-        eddy_conductance_s=g_e,
-        v_supply_v=t1["v_supply_v"],
-        f_pwm_hz=t1["f_pwm_hz"],
-        pa_kp_per_a=t1["pa_kp_per_a"],
-        pa_ki_per_a=t1["pa_ki_per_a"],
-        duty_min=cfg["amplifier"]["duty_min"],
-        duty_max=cfg["amplifier"]["duty_max"],
-        i_ref_max_a=cfg["amplifier"]["i_ref_max_a"],
-        i_bias_a=t1["i_bias_a"],
-        pole_area_m2=ap,
-        airgap_m=t1["airgap_m"],
+        **_eddy(cfg, l_pole + pitch * (rc + rs) / 2 + pitch * (rr + rj) / 2 + (rj - rr), ap, t1["mu_r"]),
+        v_supply_v=t1["v_supply_v"], f_pwm_hz=t1["f_pwm_hz"],
+        pa_kp_per_a=t1["pa_kp_per_a"], pa_ki_per_a=t1["pa_ki_per_a"],
+        duty_min=cfg["amplifier"]["duty_min"], duty_max=cfg["amplifier"]["duty_max"],
+        i_ref_max_a=cfg["amplifier"]["i_ref_max_a"], i_bias_a=t1["i_bias_a"],
+        pole_area_m2=ap, airgap_m=t1["airgap_m"],
         pole_half_angle_rad=math.radians(geo["pole_half_angle_deg"]),
-        mass_kg=t1["mass_kg"],
-        gravity_m_per_s2=cfg["gravity_m_per_s2"],
+        pole_sequence=geo["pole_sequence"], cross_coupling=bool(mag["cross_coupling"]),
+        mass_kg=t1["mass_kg"], gravity_m_per_s2=cfg["gravity_m_per_s2"], weight_share=cfg["weight_share"],
         clearance_m=t1["backup_clearance_m"],
         contact_stiffness_n_per_m=cfg["simulation"]["contact_stiffness_n_per_m"],
         contact_damping_n_s_per_m=cfg["simulation"]["contact_damping_n_s_per_m"],
-        saturation=bool(mag["saturation"]),
-        b_knee_t=mag["b_knee_t"],
-        saturation_exponent=mag["saturation_exponent"],
-        hysteresis=bool(mag["hysteresis"]),
-        coercive_field_a_per_m=mag["coercive_field_a_per_m"],
-        n_play=int(mag["n_play_operators"]),
-        play_width_max_t=mag["play_width_max_t"],
-        mu_r=t1["mu_r"],
-        l_pole_m=l_pole,
-        l_back_m=l_back,
-        a_back_m2=a_back,
-        l_rotor_m=l_rot,
-        a_rotor_m2=a_rot,
-        fs_hz=cfg["controller"]["fs_hz"],
-        substeps=int(cfg["simulation"]["substeps"]),
+        saturation=bool(mag["saturation"]), b_knee_t=mag["b_knee_t"],
+        saturation_exponent=mag["saturation_exponent"], hysteresis=bool(mag["hysteresis"]),
+        coercive_field_a_per_m=mag["coercive_field_a_per_m"], n_play=int(mag["n_play_operators"]),
+        play_width_max_t=mag["play_width_max_t"], mu_r=t1["mu_r"],
+        l_pole_m=l_pole, l_back_m=pitch * (rc + rs) / 2, a_back_m2=(rs - rc) * la,
+        l_rotor_arc_m=pitch * (rr + rj) / 2, l_rotor_radial_m=rj - rr, a_rotor_m2=(rj - rr) * la,
+        fs_hz=cfg["controller"]["fs_hz"], substeps=int(cfg["simulation"]["substeps"]),
         u_max_a=cfg["controller"]["u_max_a"],
-        derivative_filter_hz=cfg["controller"]["derivative_filter_hz"],
-        pid_kp=t1["pid_kp_a_per_m"],
-        pid_ki=t1["pid_ki_a_per_m_s"],
-        pid_kd=t1["pid_kd_a_s_per_m"],
-        ss_window=int(cfg["selfsensing"]["window_samples"]),
-        ss_lowpass_hz=cfg["selfsensing"]["lowpass_hz"],
-        ss_lowpass_order=int(cfg["selfsensing"]["lowpass_order"]),
-        ss_trend_order=int(cfg["selfsensing"]["trend_order"]),
-        ss_gate=float(cfg["selfsensing"]["residual_gate"]),
-        x_bandwidth_hz=cfg["sensors"]["x_bandwidth_hz"],
+        pid_coefficients=pid_kernel_coefficients(cfg),
+        ss_estimator=ss["estimator"], ss_window=int(ss["window_samples"]), ss_lowpass_hz=ss["lowpass_hz"],
+        ss_lowpass_order=int(ss["lowpass_order"]), ss_trend_order=int(ss["trend_order"]),
+        ss_gate=float(ss["residual_gate"]), x_bandwidth_hz=cfg["sensors"]["x_bandwidth_hz"],
+        **_converters(cfg),
     )
