@@ -404,8 +404,13 @@ def mu_for_case(loop, weights: Mapping, case: str, freqs_hz, refine: bool = True
     """μ over frequency of the generalized plant (Fig. 6) for one uncertainty case (Fig. 8):
     :math:`N_{11}` of :func:`ssamb.generalized_plant.n11_function` with the case's block
     structure; ``loop`` is :func:`ssamb.generalized_plant.uncertainty_loop`."""
+    from .closed_loop import stability
     from .generalized_plant import case_structure, n11_function
 
+    rep = stability(loop)
+    if not rep.stable:
+        raise ValueError(f"the nominal closed loop is unstable ({rep}): mu measures robust stability only "
+                         "about a stable nominal loop")
     return mu_frequency_response(n11_function(loop, weights, case), freqs_hz, case_structure(case), refine=refine)
 
 

@@ -14,7 +14,7 @@ from typing import Mapping
 import numpy as np
 
 from ..channels import ONE, etfe_pair, signal
-from ..closed_loop import lti_initial_state, simulate_closed_loop
+from ..closed_loop import lti_initial_state, simulate_closed_loop, stability
 from ..io import DataError, write_json
 from ..model_io import load_model, load_record, load_statespace, save_weight
 from ..uncertainty import measure_weight
@@ -43,6 +43,10 @@ def run_uncertainty(multisine_npz: str | Path, closed_loop_npz: str | Path, self
     fs, spp = float(nl["fs_hz"]), int(exc["samples_per_period"])
     bins = np.rint(np.asarray(exc["lines_hz"], float) * spp / fs).astype(int)
     cl = load_statespace(closed_loop_npz)
+    rep = stability(cl)
+    if not rep.stable:
+        raise ValueError(f"{closed_loop_npz}: the assembled closed loop is unstable ({rep}): it has no response "
+                         "to compare with the nonlinear one")
     lti = simulate_closed_loop(cl, nl["t"], nl["r_x"], nl["r_y"],
                                x0=lti_initial_state(cl, float(nl["r_x"][0]), float(nl["r_y"][0])))
     ss_in = [c for c in load_model(selfsensing_model).input_names if c != ONE][0]
