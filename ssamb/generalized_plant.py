@@ -107,9 +107,7 @@ def n11_function(loop: control.StateSpace, weights: Mapping[str, control.LTI], c
         w = 2 * np.pi * hz
         s = 1j * w
         arg = np.exp(s * dt) if dt else s
-        T = np.asarray(loop(arg))
-        if T.ndim == 1:
-            T = T.reshape(len(loop.output_labels), len(loop.input_labels))
+        T = np.asarray(loop(arg)).reshape(len(loop.output_labels), len(loop.input_labels))
         T = T[np.ix_(ri, ci)]
         wv = np.array([complex(np.squeeze(weights[k](s))) for k in wrow])
         return scale * wv[:, None] * T

@@ -81,8 +81,8 @@ def weight_features(weight: control.TransferFunction, f_peak_hz: float, freqs_hz
     """|W| at the peak, the weight's corners (Hz) and where |W| is largest on the grid."""
     f = np.asarray(freqs_hz, float)
     mag = np.abs(np.squeeze(weight(2j * np.pi * f)))
-    z = np.abs(np.roots(np.squeeze(weight.num[0][0]))) / (2 * np.pi)
-    p = np.abs(np.roots(np.squeeze(weight.den[0][0]))) / (2 * np.pi)
+    z = np.abs(np.atleast_1d(weight.zeros())) / (2 * np.pi)
+    p = np.abs(np.atleast_1d(weight.poles())) / (2 * np.pi)
     corners = sorted([("zero", float(x)) for x in z] + [("pole", float(x)) for x in p], key=lambda c: c[1])
     near = min(corners, key=lambda c: abs(np.log(c[1] / f_peak_hz))) if corners else None
     k = int(np.argmax(mag))
