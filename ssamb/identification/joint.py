@@ -37,6 +37,7 @@ import numpy as np
 
 from ..io import DataError
 from .model import IdentifiedModel
+from .selection import STABLE_SUBSYSTEMS
 from .subspace import identify
 
 __all__ = ["Candidate", "LoopSelection", "candidate_settings", "identify_candidates", "score_loop",
@@ -77,17 +78,20 @@ class Candidate:
                 "spectral_radius": None if m is None else m.spectral_radius}
 
 
-def candidate_settings(grid: Mapping) -> list[dict]:
+def candidate_settings(grid: Mapping, subsystem: str | None = None) -> list[dict]:
     """Identification settings of a candidate grid (config ``identification.loop_selection``).
 
     ``grid`` has ``methods``, ``horizons`` (``ss_f = ss_p``), ``a_stability`` (booleans) and
     optionally ``refine`` (``auto``/``none``, :func:`~ssamb.identification.identify`). The
-    product is taken; ``A_stability=True`` is dropped for the PARSIM methods, which ignore it.
+    product is taken; ``A_stability=True`` is dropped for the PARSIM methods, which ignore it,
+    and for the plant, which is open-loop unstable (a forced-stable plant model contradicts the
+    physics: :data:`~ssamb.identification.selection.STABLE_SUBSYSTEMS`).
     """
     out = []
     for meth, h, stab, ref in itertools.product(grid["methods"], grid["horizons"], grid["a_stability"],
                                                 grid.get("refine", ["auto"])):
-        if stab and meth not in _A_STABILITY_METHODS:
+        if stab and (meth not in _A_STABILITY_METHODS or (subsystem is not None and
+                                                          subsystem not in STABLE_SUBSYSTEMS)):
             continue
         out.append({"method": str(meth), "ss_f": int(h), "ss_p": int(h), "A_stability": bool(stab),
                     "refine": str(ref)})
