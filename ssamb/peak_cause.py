@@ -12,8 +12,11 @@ of the AMB plant" (~2 Hz). A μ peak at :math:`f^*` can come from three places, 
    .. math:: N_{11}(f) = W(j2\pi f)\Big(\sum_i \frac{(C v_i)(w_i^T B)}{e^{j2\pi fT} - z_i} + D\Big),
 
    and the *share* of a mode (with its conjugate) is :math:`\bar\sigma` of its term over
-   :math:`\bar\sigma(N_{11})` at :math:`f^*` (a first-order sensitivity of μ to that mode);
-   the counterfactual removes the dominant mode's terms and recomputes the μ peak;
+   :math:`\bar\sigma(N_{11})` at :math:`f^*`. Shares mislead when terms cancel (near DC they
+   often exceed 1), so the attribution uses a local counterfactual instead: each mode alone is
+   damped, :math:`s_i' = s_i - \Delta\zeta\,|s_i|`, with its static gain kept, and the relative
+   drop of μ at :math:`f^*` is its *sensitivity*; the most sensitive mode is the dominant one,
+   and the whole μ curve is recomputed with it damped;
 2. **a feature of the weight**: :math:`|W|` at :math:`f^*`, its corners (zeros and poles, Hz)
    and where :math:`|W|` is largest; the counterfactual replaces :math:`W` by the constant
    :math:`|W(j2\pi f^*)|` and recomputes: if the peak stays at :math:`f^*`, the loop shapes it,
@@ -21,8 +24,12 @@ of the AMB plant" (~2 Hz). A μ peak at :math:`f^*` can come from three places, 
 3. **a plant mode**: the identified plant's poles in the same map, in particular its unstable
    pole :math:`s = +\sqrt{k_s/m}` (the critical frequency :math:`\sqrt{k_s/m}/2\pi`).
 
-The verdict (:func:`peak_cause` ``cause``) follows written rules, and every number behind it is
-returned, so a report can show the computation rather than assert it.
+The verdict (:func:`peak_cause` ``cause``) follows written rules: "closed-loop pole" when the
+dominant mode lies within :data:`NEAR_FACTOR` of :math:`f^*` and damping it lowers μ there by
+at least :data:`DOMINANT_DROP`; otherwise "weight" when the flat-weight peak moves by more than
+:data:`NEAR_FACTOR`; otherwise "loop gain (no single mode)". A peak at an end of the grid is
+flagged (``at_grid_edge``). Every number behind the verdict is returned, so a report can show
+the computation rather than assert it.
 """
 from __future__ import annotations
 
@@ -36,8 +43,11 @@ __all__ = ["discrete_modes", "modal_terms", "weight_features", "peak_cause"]
 
 #: a mode "sits at" the peak when its natural frequency is within this factor of f*
 NEAR_FACTOR = 1.5
-#: a mode "dominates" the peak when its share of sigma_max(N11) at f* is at least this
-DOMINANT_SHARE = 0.5
+#: damping added to one mode at a time (s' = s - DZETA |s|) to measure mu's sensitivity to it
+DZETA = 0.1
+#: a mode "causes" the peak when that damping lowers mu at f* by at least this fraction (for a
+#: resonance of damping zeta the drop is about DZETA / (zeta + DZETA): 10 % up to zeta = 0.9)
+DOMINANT_DROP = 0.1
 
 
 def discrete_modes(poles_z, dt: float) -> list[dict]:
@@ -72,8 +82,9 @@ def modal_terms(sys: control.StateSpace, rows: Sequence[int], cols: Sequence[int
     C = np.asarray(sys.C, float)[list(rows)]
     D = np.asarray(sys.D, float)[np.ix_(list(rows), list(cols))]
     lam, V = np.linalg.eig(A)
+    lam = lam.astype(complex)
     W = np.linalg.inv(V)
-    res = np.einsum("ri,ic->irc", C @ V, W @ B)
+    res = np.einsum("ri,ic->irc", C @ V, W @ B).astype(complex)
     return lam, res, D, float(np.linalg.cond(V))
 
 
@@ -123,32 +134,58 @@ def _sigma(M) -> float:
     return float(np.linalg.norm(np.atleast_2d(M), 2))
 
 
-def _mode_shares(lam, res, D, dt, wfun, f_hz) -> list[dict]:
-    """Every mode (conjugates together) with its share of sigma_max(N11) at ``f_hz``."""
+def _damped(lam: np.ndarray, res: np.ndarray, g, dt: float, dzeta: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""Poles and residues with group ``g`` damped and its static gain kept.
+
+    :math:`s' = s - \Delta\zeta\,|s|` (a complex pair's damping ratio rises by about
+    :math:`\Delta\zeta`, a real pole becomes that much faster), :math:`z' = e^{s'T}`, and
+    :math:`R' = R\,(1 - z')/(1 - z)` so that the mode's DC contribution :math:`R/(1 - z)` is
+    unchanged: the counterfactual changes the dynamics of one mode, not the statics of the loop.
+    """
+    lam2, res2 = lam.copy(), res.copy()
+    s = np.log(lam[g]) / dt
+    lam2[g] = np.exp((s - dzeta * np.abs(s)) * dt)
+    den = 1 - lam[g]
+    ratio = np.where(np.abs(den) > 1e-12, (1 - lam2[g]) / np.where(np.abs(den) > 1e-12, den, 1.0), 1.0)
+    res2[g] = res[g] * ratio[:, None, None]
+    return lam2, res2
+
+
+def _mode_effects(lam, res, D, dt, wfun, f_hz, blk, dzeta) -> list[dict]:
+    """Every mode (conjugates together) with its share of sigma_max(N11) at ``f_hz`` and the
+    relative drop of mu at ``f_hz`` when it alone is damped by ``dzeta`` (least damped first)."""
+    from .mu import mussv
+
     z = np.exp(2j * np.pi * f_hz * dt)
     wv = wfun(f_hz)[:, None]
-    total = _sigma(wv * (D + np.tensordot(1.0 / (z - lam), res, axes=1)))
+    N = wv * (D + np.tensordot(1.0 / (z - lam), res, axes=1))
+    total, mu0 = _sigma(N), mussv(N, blk).upper
     out = []
     for g in _pairs(lam, dt):
         m = discrete_modes(lam[g[:1]] if lam[g[0]].imag >= 0 else lam[g[-1:]], dt)
         if not m:
             continue
         term = wv * np.tensordot(1.0 / (z - lam[g]), res[g], axes=1)
-        out.append({**m[0], "share": _sigma(term) / total if total > 0 else 0.0, "index": g.tolist()})
+        lam2, res2 = _damped(lam, res, g, dt, dzeta)
+        mu1 = mussv(wv * (D + np.tensordot(1.0 / (z - lam2), res2, axes=1)), blk).upper
+        out.append({**m[0], "share": _sigma(term) / total if total > 0 else 0.0,
+                    "mu_drop": (mu0 - mu1) / mu0 if mu0 > 0 else 0.0, "index": g.tolist()})
     out.sort(key=lambda m: m["zeta"])
     return out
 
 
-def _verdict(peak, f_pk, dom, without, flat_hz, plant_crit) -> tuple[str, str]:
+def _verdict(peak, f_pk, edge, dom, damped, flat_hz, plant_crit) -> tuple[str, str]:
     """Primary cause and the report sentence (rules in the module docstring)."""
     near = lambda f: f > 0 and abs(np.log(f / f_pk)) <= np.log(NEAR_FACTOR)  # noqa: E731
-    mode_cause = dom["share"] >= DOMINANT_SHARE and near(dom["f_hz"])
+    mode_cause = dom["mu_drop"] >= DOMINANT_DROP and near(dom["f_hz"])
     weight_cause = not near(flat_hz)
-    cause = ("closed-loop pole" if mode_cause else "weight" if weight_cause else "loop gain (no single mode)")
-    text = (f"mu peak {peak:.3g} at {f_pk:.3g} Hz: closed-loop pole at {dom['f_hz']:.3g} Hz, "
-            f"zeta {dom['zeta']:.2g} ({dom['share']:.0%} of sigma(N11) there; without it the peak is "
-            f"{without['peak']:.3g} at {without['peak_hz']:.3g} Hz); with a flat weight the peak is at "
-            f"{flat_hz:.3g} Hz")
+    cause = "closed-loop pole" if mode_cause else "weight" if weight_cause else "loop gain (no single mode)"
+    where = {"low": " (the grid's lowest frequency: mu rises towards DC)",
+             "high": " (the grid's highest frequency)"}.get(edge, "")
+    text = (f"mu peak {peak:.3g} at {f_pk:.3g} Hz{where}: most sensitive closed-loop pole at "
+            f"{dom['f_hz']:.3g} Hz, zeta {dom['zeta']:.2g} (damping it by {DZETA:g} lowers mu there by "
+            f"{dom['mu_drop']:.0%}; the peak becomes {damped['peak']:.3g} at {damped['peak_hz']:.3g} Hz); "
+            f"with a flat weight the peak is at {flat_hz:.3g} Hz")
     if plant_crit is not None:
         text += f"; the plant's critical frequency sqrt(ks/m)/2pi is {plant_crit:.3g} Hz"
     return cause, text + f"; cause: {cause}"
@@ -171,16 +208,19 @@ def peak_cause(loop: control.StateSpace, weights: Mapping, case: str, sweep, pla
     plant : IdentifiedModel, optional
         The plant model whose poles (and unstable pole, the critical frequency) are reported.
     n_modes : int
-        Least-damped closed-loop modes and largest shares listed.
+        Least-damped closed-loop modes and most sensitive modes listed.
 
     Returns
     -------
     dict
-        ``peak``, ``peak_hz``; ``least_damped`` and ``largest_shares`` (modes: ``f_hz``,
-        ``zeta``, ``share``, ``z``, ``s``; least damped within the grid's band; a share can exceed 1
-        when modal terms cancel); ``dominant``; ``without_dominant`` (μ peak and
-        frequency with that mode removed); ``flat_weight`` (μ peak frequency with
-        :math:`W \equiv |W(j2\pi f^*)|`); ``weights`` (:func:`weight_features` per subsystem);
+        ``peak``, ``peak_hz``, ``at_grid_edge`` (None, 'low' or 'high'); ``least_damped`` (in
+        the grid's band) and ``most_sensitive`` (modes: ``f_hz``, ``zeta``, ``z``, ``s``,
+        ``mu_drop`` = relative drop of μ at the peak when the mode alone is damped by
+        :data:`DZETA`, ``share`` = its term's share of :math:`\bar\sigma(N_{11})`, which can
+        exceed 1 when terms cancel); ``dominant`` (largest ``mu_drop``); ``damped_dominant``
+        (μ peak and frequency with it damped); ``flat_weight`` (μ peak frequency with
+        :math:`W \equiv |W(j2\pi f^*)|`); ``weights`` (:func:`weight_features`);
+        ``loop_gain_at_peak`` (:math:`\bar\sigma` of the unweighted transfer at :math:`f^*`);
         ``plant_modes`` and ``plant_critical_hz``; ``modal_error`` (relative error of the modal
         reconstruction of :math:`N_{11}` at the peak) and ``eigvec_cond``; ``cause`` and
         ``sentence``.
@@ -194,27 +234,28 @@ def peak_cause(loop: control.StateSpace, weights: Mapping, case: str, sweep, pla
     lam, res, D, cond = modal_terms(loop, ri, ci)
     exact = n11_function(loop, weights, case)(f_pk)
     modal_err = _sigma(_n11_modal(lam, res, D, dt, wfun)(f_pk) - exact) / max(_sigma(exact), 1e-300)
-    modes = _mode_shares(lam, res, D, dt, wfun, f_pk)
-    dom = max(modes, key=lambda m: m["share"])
+    modes = _mode_effects(lam, res, D, dt, wfun, f_pk, blk, DZETA)
+    dom = max(modes, key=lambda m: m["mu_drop"])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        wo = mu_frequency_response(_n11_modal(lam, res, D, dt, wfun, drop=dom["index"]), grid, blk)
+        dm = mu_frequency_response(_n11_modal(*_damped(lam, res, dom["index"], dt, DZETA), D, dt, wfun), grid, blk)
         flat = {k: abs(complex(np.squeeze(weights[k](2j * np.pi * f_pk)))) for k in set(wrow)}
         fl = mu_frequency_response(n11_function(loop, {k: control.tf([v], [1]) for k, v in flat.items()}, case),
                                    grid, blk)
     pm = discrete_modes(plant.poles, dt) if plant is not None else []
-    unstable = [m for m in pm if m["abs_z"] >= 1.0]
-    crit = max((m["f_hz"] for m in unstable), default=None)
-    without = {"peak": wo.peak, "peak_hz": wo.peak_hz}
-    cause, text = _verdict(sweep.peak, f_pk, dom, without, fl.peak_hz, crit)
+    crit = max((m["f_hz"] for m in pm if m["abs_z"] >= 1.0), default=None)
+    damped = {"peak": dm.peak, "peak_hz": dm.peak_hz}
+    edge = "low" if f_pk <= grid.min() else "high" if f_pk >= grid.max() else None
+    cause, text = _verdict(sweep.peak, f_pk, edge, dom, damped, fl.peak_hz, crit)
     strip = lambda m: {k: v for k, v in m.items() if k != "index"}  # noqa: E731
     return {
-        "case": case, "peak": float(sweep.peak), "peak_hz": f_pk,
+        "case": case, "peak": float(sweep.peak), "peak_hz": f_pk, "at_grid_edge": edge,
         "least_damped": [strip(m) for m in modes if grid[0] <= m["f_hz"] <= grid[-1]][:n_modes],
-        "largest_shares": [strip(m) for m in sorted(modes, key=lambda m: -m["share"])[:n_modes]],
-        "dominant": strip(dom), "without_dominant": without,
+        "most_sensitive": [strip(m) for m in sorted(modes, key=lambda m: -m["mu_drop"])[:n_modes]],
+        "dominant": strip(dom), "damped_dominant": damped, "dzeta": DZETA,
         "flat_weight": {"peak": fl.peak, "peak_hz": fl.peak_hz, "mag": flat},
         "weights": {k: weight_features(weights[k], f_pk, grid) for k in dict.fromkeys(wrow)},
+        "loop_gain_at_peak": _sigma(exact / wfun(f_pk)[:, None]),
         "plant_modes": pm[:n_modes], "plant_critical_hz": crit,
         "modal_error": float(modal_err), "eigvec_cond": cond, "cause": cause, "sentence": text,
     }

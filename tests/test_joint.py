@@ -167,7 +167,9 @@ def test_peak_cause_finds_a_known_lightly_damped_pole():
     assert pc["least_damped"][0]["f_hz"] == pytest.approx(f0, rel=1e-6)
     assert pc["peak_hz"] == pytest.approx(f0 * np.sqrt(1 - 2 * zeta ** 2), rel=5e-3)
     assert pc["cause"] == "closed-loop pole"
-    assert pc["without_dominant"]["peak"] < 0.2 * pc["peak"]
+    assert pc["dominant"]["mu_drop"] > 0.5  # zeta 0.05 -> 0.15 lowers the resonance ~3x
+    assert pc["damped_dominant"]["peak"] < 0.5 * pc["peak"]
+    assert pc["at_grid_edge"] is None
     assert pc["plant_critical_hz"] == pytest.approx(40.0, rel=1e-9)
     assert pc["modal_error"] < 1e-8
     assert "60 Hz" in pc["sentence"] and "zeta 0.05" in pc["sentence"]

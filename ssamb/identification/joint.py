@@ -117,7 +117,7 @@ def identify_candidates(u, y, subsystem: str, order: int, settings: Sequence[Map
 
     done = {_key(c.settings): c for c in known}
     out, seen = [], {}
-    for s in tqdm(settings, desc=f"candidates {subsystem}", disable=not progress, leave=False):
+    for s in tqdm(settings, desc=f"candidates {subsystem}", disable=not progress, leave=False, mininterval=5.0):
         c = done.get(_key(s))
         if c is None:
             try:
@@ -235,7 +235,7 @@ def select_loop(candidates: Mapping[str, Sequence[Candidate]], pid_x, pid_y, val
     usable = {k: [c for c in candidates[k] if c.model is not None and c.same_as is None] for k in subs}
     combos = list(itertools.product(*(usable[k] for k in subs)))
     table = []
-    for combo in tqdm(combos, desc="assembled loops", disable=not progress, leave=False):
+    for combo in tqdm(combos, desc="assembled loops", disable=not progress, leave=False, mininterval=5.0):
         row = {k: c.label for k, c in zip(subs, combo)}
         row.update(score_loop(*(c.model for c in combo), pid_x, pid_y, validation, channels))
         table.append(row)
