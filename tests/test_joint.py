@@ -188,3 +188,32 @@ def test_peak_cause_attributes_a_weight_bump_to_the_weight():
     assert pc["weights"]["selfsensing"]["max_mag_hz"] == pytest.approx(pc["peak_hz"], rel=0.1)
     assert pc["dominant"]["zeta"] == pytest.approx(1.0)
     assert pc["plant_critical_hz"] is None
+
+
+def test_run_select_files_in_files_out(known, tmp_path):
+    from ssamb.config import load_config
+    from ssamb.io import save_npz
+    from ssamb.model_io import FailedFit, load_candidates, load_model, save_candidates
+    from ssamb.stages.select import run_select
+
+    cands, val = known
+    files = {}
+    for k, v in cands.items():
+        files[k] = tmp_path / f"{k}_candidates.npz"
+        save_candidates(files[k], k, v)
+    back = load_candidates(files["selfsensing"])
+    assert [c.label for c in back] == [c.label for c in cands["selfsensing"]]
+    assert back[3].model is None and back[3].error == "RuntimeError: boom" and back[4].same_as == "S f10 p10"
+    np.testing.assert_array_equal(back[0].model.B, cands["selfsensing"][0].model.B)
+    save_npz(tmp_path / "val.npz", {k: np.asarray(v) for k, v in val.items() if k != "states"})
+    outs = {k: tmp_path / f"{k}_loop.npz" for k in cands}
+    info = run_select(files, tmp_path / "val.npz", load_config(), outs, tmp_path / "select.json")
+    assert not info["failed"] and info["n_combinations"] == 6 and info["n_stable"] == 2
+    assert load_model(outs["selfsensing"]).method == "S"
+    # no stable combination: every model file is a failed fit that says why
+    save_candidates(files["selfsensing"], "selfsensing", cands["selfsensing"][1:3])
+    info = run_select(files, tmp_path / "val.npz", load_config(), outs, tmp_path / "select.json")
+    assert info["failed"] and "no stable assembled loop" in info["error"]
+    for path in outs.values():
+        with pytest.raises(FailedFit, match="smallest spectral radius"):
+            load_model(path)
