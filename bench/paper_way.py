@@ -31,6 +31,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+import numpy as np  # noqa: E402
+
 from ssamb.channels import SUBSYSTEMS, VARIANTS  # noqa: E402
 from ssamb.config import load_config  # noqa: E402
 
@@ -96,6 +98,34 @@ def _downstream(cfg, sim: Path, out: Path, models: dict) -> dict:
     return {"assemble": asm, "uncertainty": unc, "mu": mu}
 
 
+def _evidence(cfg, out: Path, files: dict) -> dict:
+    """Why the selected loop is stable: the amplifier's position path (selected and every
+    amplifier candidate), the loop's radius with that path scaled, and the DC check of mu."""
+    from ssamb.identification.joint import position_path, position_path_scan
+    from ssamb.model_io import load_candidates, load_model, load_weight
+    from ssamb.sim.controller import pid_discrete
+
+    pid = pid_discrete(cfg)
+    m = {k: load_model(out / f"{k}_loop.npz") for k in SUBS}
+    freqs = (5.0, 40.0, 200.0)
+    ev = {"selected": position_path(m["amplifier"], pid, freqs),
+          "candidates": {c.label: position_path(c.model, pid, freqs) for c in load_candidates(files["amplifier"])
+                         if c.model is not None and c.same_as is None},
+          "scan": position_path_scan(m["plant"], m["amplifier"], m["selfsensing"], pid, pid)}
+    s = m["selfsensing"]
+    s0 = float((s.C @ np.linalg.solve(np.eye(s.order) - s.A, s.B[:, :1]) + s.D[:, :1]).item())
+    w0 = abs(complex(np.squeeze(load_weight(out / "selfsensing_weight.npz")(0.0))))
+    ev["dc"] = {"selfsensing_static_gain_m_per_a": s0, "weight_dc": w0, "w0_over_s0": w0 / abs(s0)}
+    print("\nposition path of the selected amplifier (y):")
+    for r in ev["selected"]:
+        print(f"  {r['f_hz']:6.1f} Hz |Gu| {r['abs_Gu']:.3g}  |Gp| {r['abs_Gp_a_per_m']:.3g} A/m  "
+              f"Gp/(-Gu C) {complex(*r['Gp_over_minus_GuC']):.2f}")
+    print("  loop radius with the position path scaled:", [(r["factor"], round(r["spectral_radius"], 6))
+                                                          for r in ev["scan"]])
+    print(f"  DC: |W(0)| / |S(0)| = {w0:.3g} / {abs(s0):.3g} = {w0 / abs(s0):.3g}")
+    return ev
+
+
 def _default_cause(cfg, results: Path) -> dict:
     """The cause of the default loop's self-sensing mu peak (stored models and weight)."""
     from ssamb.generalized_plant import uncertainty_loop
@@ -145,6 +175,7 @@ def main() -> int:
         print(f"self-sensing weight {unc['weight']} ({unc['unit']})")
         print(f"mu peak {mu['peak']:.4g} at {mu['peak_hz']:.4g} Hz, scale for a peak of 1: {mu['scale_for_unity']:.4g}")
         print("cause:", mu["peak_cause"]["sentence"])
+        summary["evidence"] = _evidence(cfg, a.out, files)
         summary.update({"fig4_fit_pct": asm["fit_pct"], "spectral_radius": asm["spectral_radius"],
                         "weight": unc["weight"], "mu": {k: mu[k] for k in ("peak", "peak_hz", "scale_for_unity")},
                         "peak_cause": mu["peak_cause"]})

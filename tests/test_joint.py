@@ -217,3 +217,20 @@ def test_run_select_files_in_files_out(known, tmp_path):
     for path in outs.values():
         with pytest.raises(FailedFit, match="smallest spectral radius"):
             load_model(path)
+
+
+def test_position_path_of_the_known_amplifier(known, pid):
+    from ssamb.identification.joint import position_path, position_path_scan
+
+    cands, _ = known
+    G = cands["amplifier"][0].model  # i_ypos = wa/(s + wa) (u_y_cmd - 200 y_meas) + bias
+    for row in position_path(G, pid, [1.0, 40.0, 300.0]):
+        assert row["abs_Gp_a_per_m"] / row["abs_Gu"] == pytest.approx(200.0, rel=1e-6)
+        z = np.exp(2j * np.pi * row["f_hz"] * DT)
+        ratio = 200.0 / complex(np.squeeze(pid(z)))
+        assert complex(*row["Gp_over_minus_GuC"]) == pytest.approx(ratio, rel=1e-6)
+    P, S = cands["plant"][0].model, cands["selfsensing"][0].model
+    scan = position_path_scan(P, G, S, pid, pid, (0.0, 1.0))
+    ref = stability(assemble_closed_loop(P, G, S, pid, pid)).spectral_radius
+    assert scan[1]["spectral_radius"] == pytest.approx(ref, abs=1e-12)
+    assert scan[0]["spectral_radius"] != pytest.approx(ref, abs=1e-9)

@@ -41,7 +41,7 @@ from .selection import STABLE_SUBSYSTEMS
 from .subspace import identify
 
 __all__ = ["Candidate", "LoopSelection", "candidate_settings", "identify_candidates", "score_loop",
-           "select_loop"]
+           "select_loop", "position_path", "position_path_scan"]
 
 #: SIPPY methods for which ``SS_A_stability`` has an effect (the PARSIM family ignores it).
 _A_STABILITY_METHODS = ("N4SID", "MOESP", "CVA")
@@ -245,3 +245,46 @@ def select_loop(candidates: Mapping[str, Sequence[Candidate]], pid_x, pid_y, val
         i = max(stable, key=lambda j: table[j]["mean_fit_pct"])
         choice = dict(zip(subs, combos[i]))
     return LoopSelection(choice, table, RULE, {k: list(candidates[k]) for k in subs})
+
+
+def position_path(amplifier: IdentifiedModel, pid, freqs_hz: Sequence[float], axis: str = "y") -> list[dict]:
+    r"""How much of the controller's feedback a 4-input amplifier model carries (one axis).
+
+    For the coil current :math:`i` of the axis' positive magnet, the command path
+    :math:`G_u = i/u_{cmd}`, the position path :math:`G_p = i/\text{pos}` and the ratio
+    :math:`G_p / (-G_u C)` (C the PID): 0 for a current-controlled amplifier that ignores the
+    rotor, 1 when the model's position path equals the feedback the controller applies through
+    the commands. In the paper's structure the assembled loop needs :math:`G_p` to stabilise the
+    plant's unstable pole (module docstring), so stable combinations show large ratios.
+    """
+    ins = list(amplifier.input_names)
+    j_u, j_p = ins.index(f"u_{axis}_cmd"), ins.index(f"{axis}_meas")
+    i_o = list(amplifier.output_names).index(f"i_{axis}pos")
+    A, B, C = amplifier.A, amplifier.B, amplifier.C
+    out = []
+    for f in freqs_hz:
+        z = np.exp(2j * np.pi * f * amplifier.dt)
+        g = C[i_o] @ np.linalg.solve(z * np.eye(amplifier.order) - A, B) + amplifier.D[i_o]
+        c = complex(np.squeeze(pid(z)))
+        out.append({"f_hz": float(f), "abs_Gu": float(abs(g[j_u])), "abs_Gp_a_per_m": float(abs(g[j_p])),
+                    "Gp_over_minus_GuC": [float((g[j_p] / (-g[j_u] * c)).real), float((g[j_p] / (-g[j_u] * c)).imag)]})
+    return out
+
+
+def position_path_scan(plant, amplifier: IdentifiedModel, selfsensing, pid_x, pid_y,
+                       factors: Sequence[float] = (0.0, 0.5, 1.0, 2.0, 5.0)) -> list[dict]:
+    """Spectral radius of the assembled loop with the amplifier's position inputs scaled by each
+    factor (0: a current-controlled amplifier that ignores the rotor; 1: the model)."""
+    from ..closed_loop import assemble_closed_loop, stability
+
+    cols = [list(amplifier.all_input_names).index(c) for c in amplifier.input_names if c.endswith("_meas")]
+    out = []
+    for k in factors:
+        B, D = amplifier.B.copy(), amplifier.D.copy()
+        B[:, cols] *= k
+        D[:, cols] *= k
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            cl = assemble_closed_loop(plant, amplifier.replace(B=B, D=D), selfsensing, pid_x, pid_y)
+        out.append({"factor": float(k), "spectral_radius": stability(cl).spectral_radius})
+    return out
