@@ -174,21 +174,60 @@ def _mode_effects(lam, res, D, dt, wfun, f_hz, blk, dzeta) -> list[dict]:
     return out
 
 
-def _verdict(peak, f_pk, edge, dom, damped, flat_hz, plant_crit) -> tuple[str, str]:
-    """Primary cause and the report sentence (rules in the module docstring)."""
+def _verdict(a: dict, edge, plant_crit) -> tuple[str, str]:
+    """Primary cause and the report sentence of one attribution (rules in the module docstring)."""
+    f_pk, dom, damped, flat_hz = a["peak_hz"], a["dominant"], a["damped_dominant"], a["flat_weight"]["peak_hz"]
     near = lambda f: f > 0 and abs(np.log(f / f_pk)) <= np.log(NEAR_FACTOR)  # noqa: E731
     mode_cause = dom["mu_drop"] >= DOMINANT_DROP and near(dom["f_hz"])
     weight_cause = not near(flat_hz)
     cause = "closed-loop pole" if mode_cause else "weight" if weight_cause else "loop gain (no single mode)"
     where = {"low": " (the grid's lowest frequency: mu rises towards DC)",
              "high": " (the grid's highest frequency)"}.get(edge, "")
-    text = (f"mu peak {peak:.3g} at {f_pk:.3g} Hz{where}: most sensitive closed-loop pole at "
-            f"{dom['f_hz']:.3g} Hz, zeta {dom['zeta']:.2g} (damping it by {DZETA:g} lowers mu there by "
-            f"{dom['mu_drop']:.0%}; the peak becomes {damped['peak']:.3g} at {damped['peak_hz']:.3g} Hz); "
-            f"with a flat weight the peak is at {flat_hz:.3g} Hz")
+    pole = (f"{dom['f_hz']:.3g} Hz, zeta {dom['zeta']:.2g} (damping it by {DZETA:g} lowers mu there by "
+            f"{dom['mu_drop']:.0%}; the peak becomes {damped['peak']:.3g} at {damped['peak_hz']:.3g} Hz)")
+    text = f"mu peak {a['peak']:.3g} at {f_pk:.3g} Hz{where}: "
+    text += f"closed-loop pole at {pole}" if mode_cause else \
+        f"no single closed-loop pole sets it (most sensitive: {pole})"
+    text += f"; |W| there {a['weight_mag']:.3g}, with a flat weight the peak is at {flat_hz:.3g} Hz"
     if plant_crit is not None:
         text += f"; the plant's critical frequency sqrt(ks/m)/2pi is {plant_crit:.3g} Hz"
     return cause, text + f"; cause: {cause}"
+
+
+def _attribute(loop, weights, case: str, f_pk: float, peak: float, grid, modal) -> dict:
+    """Modes with their mu sensitivity at ``f_pk``, the dominant one, the mu curve with it damped
+    and the mu curve with a flat weight (see :func:`peak_cause`)."""
+    from .generalized_plant import case_structure, n11_channels, n11_function
+    from .robustness import mu_frequency_response
+
+    lam, res, D, dt, wfun = modal
+    blk, wrow = case_structure(case), n11_channels(loop, case)[2]
+    modes = _mode_effects(lam, res, D, dt, wfun, f_pk, blk, DZETA)
+    dom = max(modes, key=lambda m: m["mu_drop"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dm = mu_frequency_response(_n11_modal(*_damped(lam, res, dom["index"], dt, DZETA), D, dt, wfun), grid, blk)
+        flat = {k: abs(complex(np.squeeze(weights[k](2j * np.pi * f_pk)))) for k in set(wrow)}
+        fl = mu_frequency_response(n11_function(loop, {k: control.tf([v], [1]) for k, v in flat.items()}, case),
+                                   grid, blk)
+    strip = lambda m: {k: v for k, v in m.items() if k != "index"}  # noqa: E731
+    exact = n11_function(loop, weights, case)(f_pk)
+    return {"peak": float(peak), "peak_hz": float(f_pk), "modes": modes, "dominant": strip(dom),
+            "most_sensitive": [strip(m) for m in sorted(modes, key=lambda m: -m["mu_drop"])[:5]],
+            "damped_dominant": {"peak": dm.peak, "peak_hz": dm.peak_hz},
+            "flat_weight": {"peak": fl.peak, "peak_hz": fl.peak_hz, "mag": flat},
+            "weight_mag": float(max(flat.values())),
+            "loop_gain_at_peak": _sigma(exact / wfun(f_pk)[:, None])}
+
+
+def _interior_max(sweep) -> tuple[float, float] | None:
+    """The largest local maximum of the mu curve away from the grid's ends, if any."""
+    u, f = np.asarray(sweep.upper), np.asarray(sweep.freqs_hz)
+    idx = [i for i in range(1, len(u) - 1) if u[i] >= u[i - 1] and u[i] >= u[i + 1]]
+    if not idx:
+        return None
+    i = max(idx, key=lambda j: u[j])
+    return float(f[i]), float(u[i])
 
 
 def peak_cause(loop: control.StateSpace, weights: Mapping, case: str, sweep, plant=None,
@@ -208,54 +247,48 @@ def peak_cause(loop: control.StateSpace, weights: Mapping, case: str, sweep, pla
     plant : IdentifiedModel, optional
         The plant model whose poles (and unstable pole, the critical frequency) are reported.
     n_modes : int
-        Least-damped closed-loop modes and most sensitive modes listed.
+        Least-damped closed-loop modes listed.
 
     Returns
     -------
     dict
-        ``peak``, ``peak_hz``, ``at_grid_edge`` (None, 'low' or 'high'); ``least_damped`` (in
-        the grid's band) and ``most_sensitive`` (modes: ``f_hz``, ``zeta``, ``z``, ``s``,
-        ``mu_drop`` = relative drop of μ at the peak when the mode alone is damped by
-        :data:`DZETA`, ``share`` = its term's share of :math:`\bar\sigma(N_{11})`, which can
-        exceed 1 when terms cancel); ``dominant`` (largest ``mu_drop``); ``damped_dominant``
-        (μ peak and frequency with it damped); ``flat_weight`` (μ peak frequency with
-        :math:`W \equiv |W(j2\pi f^*)|`); ``weights`` (:func:`weight_features`);
-        ``loop_gain_at_peak`` (:math:`\bar\sigma` of the unweighted transfer at :math:`f^*`);
-        ``plant_modes`` and ``plant_critical_hz``; ``modal_error`` (relative error of the modal
-        reconstruction of :math:`N_{11}` at the peak) and ``eigvec_cond``; ``cause`` and
-        ``sentence``.
+        ``peak``, ``peak_hz``, ``at_grid_edge`` (None, 'low' or 'high'); ``least_damped``
+        (closed-loop modes in the grid's band: ``f_hz``, ``zeta``, ``z``, ``s``, ``mu_drop`` =
+        relative drop of μ at the peak when the mode alone is damped by :data:`DZETA`,
+        ``share`` = its term's share of :math:`\bar\sigma(N_{11})`, which can exceed 1 when
+        terms cancel); ``most_sensitive``; ``dominant`` (largest ``mu_drop``);
+        ``damped_dominant`` (μ peak and frequency with it damped); ``flat_weight`` (μ peak
+        with :math:`W \equiv |W(j2\pi f^*)|`); ``weight_mag`` and ``weights``
+        (:func:`weight_features`); ``loop_gain_at_peak`` (:math:`\bar\sigma` of the
+        unweighted transfer at :math:`f^*`); ``plant_modes`` and ``plant_critical_hz``;
+        ``modal_error`` (relative error of the modal reconstruction of :math:`N_{11}` at the
+        peak) and ``eigvec_cond``; ``cause`` and ``sentence``; when the peak is at a grid end,
+        ``interior`` holds the same attribution for the largest interior local maximum.
     """
-    from .generalized_plant import case_structure, n11_channels, n11_function
-    from .robustness import mu_frequency_response
+    from .generalized_plant import n11_channels, n11_function
 
     ri, ci, wrow = n11_channels(loop, case)
-    dt, f_pk, grid, blk = float(loop.dt), float(sweep.peak_hz), np.asarray(sweep.freqs_hz), case_structure(case)
+    dt, f_pk, grid = float(loop.dt), float(sweep.peak_hz), np.asarray(sweep.freqs_hz)
     wfun = lambda hz: np.array([complex(np.squeeze(weights[k](2j * np.pi * hz))) for k in wrow])  # noqa: E731
     lam, res, D, cond = modal_terms(loop, ri, ci)
+    modal = (lam, res, D, dt, wfun)
     exact = n11_function(loop, weights, case)(f_pk)
     modal_err = _sigma(_n11_modal(lam, res, D, dt, wfun)(f_pk) - exact) / max(_sigma(exact), 1e-300)
-    modes = _mode_effects(lam, res, D, dt, wfun, f_pk, blk, DZETA)
-    dom = max(modes, key=lambda m: m["mu_drop"])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        dm = mu_frequency_response(_n11_modal(*_damped(lam, res, dom["index"], dt, DZETA), D, dt, wfun), grid, blk)
-        flat = {k: abs(complex(np.squeeze(weights[k](2j * np.pi * f_pk)))) for k in set(wrow)}
-        fl = mu_frequency_response(n11_function(loop, {k: control.tf([v], [1]) for k, v in flat.items()}, case),
-                                   grid, blk)
     pm = discrete_modes(plant.poles, dt) if plant is not None else []
     crit = max((m["f_hz"] for m in pm if m["abs_z"] >= 1.0), default=None)
-    damped = {"peak": dm.peak, "peak_hz": dm.peak_hz}
     edge = "low" if f_pk <= grid.min() else "high" if f_pk >= grid.max() else None
-    cause, text = _verdict(sweep.peak, f_pk, edge, dom, damped, fl.peak_hz, crit)
+    a = _attribute(loop, weights, case, f_pk, sweep.peak, grid, modal)
+    a["cause"], a["sentence"] = _verdict(a, edge, crit)
+    inner = _interior_max(sweep) if edge else None
+    if inner is not None:
+        b = _attribute(loop, weights, case, inner[0], inner[1], grid, modal)
+        b["cause"], b["sentence"] = _verdict(b, None, crit)
+        b.pop("modes")
+        a["sentence"] += f". Largest interior maximum: {b['sentence']}"
+    modes = a.pop("modes")
     strip = lambda m: {k: v for k, v in m.items() if k != "index"}  # noqa: E731
-    return {
-        "case": case, "peak": float(sweep.peak), "peak_hz": f_pk, "at_grid_edge": edge,
-        "least_damped": [strip(m) for m in modes if grid[0] <= m["f_hz"] <= grid[-1]][:n_modes],
-        "most_sensitive": [strip(m) for m in sorted(modes, key=lambda m: -m["mu_drop"])[:n_modes]],
-        "dominant": strip(dom), "damped_dominant": damped, "dzeta": DZETA,
-        "flat_weight": {"peak": fl.peak, "peak_hz": fl.peak_hz, "mag": flat},
-        "weights": {k: weight_features(weights[k], f_pk, grid) for k in dict.fromkeys(wrow)},
-        "loop_gain_at_peak": _sigma(exact / wfun(f_pk)[:, None]),
-        "plant_modes": pm[:n_modes], "plant_critical_hz": crit,
-        "modal_error": float(modal_err), "eigvec_cond": cond, "cause": cause, "sentence": text,
-    }
+    return {"case": case, **a, "at_grid_edge": edge, "interior": None if inner is None else b,
+            "least_damped": [strip(m) for m in modes if grid[0] <= m["f_hz"] <= grid[-1]][:n_modes],
+            "dzeta": DZETA, "weights": {k: weight_features(weights[k], f_pk, grid) for k in dict.fromkeys(wrow)},
+            "plant_modes": pm[:n_modes], "plant_critical_hz": crit, "modal_error": float(modal_err),
+            "eigvec_cond": cond}

@@ -234,3 +234,20 @@ def test_position_path_of_the_known_amplifier(known, pid):
     ref = stability(assemble_closed_loop(P, G, S, pid, pid)).spectral_radius
     assert scan[1]["spectral_radius"] == pytest.approx(ref, abs=1e-12)
     assert scan[0]["spectral_radius"] != pytest.approx(ref, abs=1e-9)
+
+
+def test_peak_cause_at_the_grid_edge_attributes_the_interior_maximum_too():
+    from ssamb.peak_cause import peak_cause
+
+    f0, zeta = 60.0, 0.1
+    w0 = 2 * np.pi * f0
+    loop = _siso_loop([w0 ** 2], [1, 2 * zeta * w0, w0 ** 2])  # unit DC gain, resonance x5 at 60 Hz
+    s = control.tf("s")
+    weights = {"selfsensing": 0.01 / (1 + s / (2 * np.pi * 3.0))}  # largest at DC, 1/20 at 60 Hz
+    pc = peak_cause(loop, weights, "selfsensing", _mu(loop, weights))
+    # at the grid's 1 Hz: |W| |T| = 0.01 / |1 + j/3| (|T(1 Hz)| = 1 to 3e-4)
+    assert pc["at_grid_edge"] == "low" and pc["peak"] == pytest.approx(0.01 / np.sqrt(1 + 1 / 9), rel=1e-3)
+    assert pc["cause"] == "weight" and pc["dominant"]["mu_drop"] == pytest.approx(0.0, abs=1e-3)
+    inner = pc["interior"]
+    assert inner["dominant"]["f_hz"] == pytest.approx(f0, rel=1e-6) and inner["cause"] == "closed-loop pole"
+    assert "Largest interior maximum" in pc["sentence"]
