@@ -251,3 +251,30 @@ def test_peak_cause_at_the_grid_edge_attributes_the_interior_maximum_too():
     inner = pc["interior"]
     assert inner["dominant"]["f_hz"] == pytest.approx(f0, rel=1e-6) and inner["cause"] == "closed-loop pole"
     assert "Largest interior maximum" in pc["sentence"]
+
+
+def test_run_identify_writes_the_candidates_of_the_grid(pid, tmp_path):
+    from ssamb.io import save_npz
+    from ssamb.model_io import load_candidates
+    from ssamb.stages.identify import run_identify
+
+    truth = assemble_closed_loop(*_known_linear_amb(), pid, pid, require_stable=True)
+    paths = []
+    for name, dur, seed in (("est", 0.06, 1), ("val", 0.03, 3)):
+        n = int(dur * FS)
+        d = simulate_closed_loop(truth, np.arange(n) * DT, 0.0, 0.0, _pulse_train(n, 0.3, seed),
+                                 _pulse_train(n, 0.3, seed + 1), x0=lti_initial_state(truth))
+        d.pop("states")
+        paths.append(tmp_path / f"{name}.npz")
+        save_npz(paths[-1], {**d, "fs_hz": np.asarray(FS)})
+    params = {"ss_f": 10, "ss_p": 10, "methods": ["N4SID", "PARSIM-K"],
+              "order_scan": {"orders": [1], "duration_s": 0.02},
+              "selfsensing": {"order": 1, "input": "current"},
+              "loop_selection": {"methods": ["N4SID", "PARSIM-K"], "horizons": [10, 12], "a_stability": [False, True]}}
+    info = run_identify(*paths, "selfsensing", params, tmp_path / "m.npz", tmp_path / "m.json",
+                        out_candidates=tmp_path / "c.npz")
+    cands = load_candidates(tmp_path / "c.npz")
+    assert [c.label for c in cands] == ["N4SID f10 p10", "N4SID f10 p10 stab", "N4SID f12 p12", "N4SID f12 p12 stab",
+                                        "PARSIM-K f10 p10", "PARSIM-K f12 p12"]
+    assert info["loop_candidates"]["n"] == 6
+    assert all(c.model is not None and c.model.input_names == ("i_ypos",) for c in cands)

@@ -74,8 +74,8 @@ def _loop_candidates(est, sel, subsystem: str, variant: str, order: int, params:
 
     base = {"ss_f": int(params["ss_f"]), "ss_p": int(params["ss_p"]), "A_stability": False, "refine": "auto"}
     known = [Candidate(subsystem, {"method": r.method, **base}, r.model, r.error) for r in sel.results]
-    cands = identify_candidates(est.u, est.y, subsystem, order, candidate_settings(params["loop_selection"], subsystem), fs,
-                                est.input_names, est.output_names,
+    settings = candidate_settings(params["loop_selection"], subsystem)
+    cands = identify_candidates(est.u, est.y, subsystem, order, settings, fs, est.input_names, est.output_names,
                                 input_directions=structure(subsystem, variant).input_directions, known=known,
                                 progress=True)
     save_candidates(out_candidates, subsystem, cands)
