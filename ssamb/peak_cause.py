@@ -188,7 +188,8 @@ def _verdict(a: dict, edge, plant_crit) -> tuple[str, str]:
     text = f"mu peak {a['peak']:.3g} at {f_pk:.3g} Hz{where}: "
     text += f"closed-loop pole at {pole}" if mode_cause else \
         f"no single closed-loop pole sets it (most sensitive: {pole})"
-    text += f"; |W| there {a['weight_mag']:.3g}, with a flat weight the peak is at {flat_hz:.3g} Hz"
+    text += (f"; there |W| = {a['weight_mag']:.3g} and the unweighted transfer {a['loop_gain_at_peak']:.3g}; "
+             f"with a flat weight the peak is at {flat_hz:.3g} Hz")
     if plant_crit is not None:
         text += f"; the plant's critical frequency sqrt(ks/m)/2pi is {plant_crit:.3g} Hz"
     return cause, text + f"; cause: {cause}"
@@ -221,9 +222,12 @@ def _attribute(loop, weights, case: str, f_pk: float, peak: float, grid, modal) 
 
 
 def _interior_max(sweep) -> tuple[float, float] | None:
-    """The largest local maximum of the mu curve away from the grid's ends, if any."""
+    """The largest local maximum of the mu curve at least :data:`NEAR_FACTOR` away from the
+    grid's ends (the refinement crowds points next to an end peak), if any."""
     u, f = np.asarray(sweep.upper), np.asarray(sweep.freqs_hz)
-    idx = [i for i in range(1, len(u) - 1) if u[i] >= u[i - 1] and u[i] >= u[i + 1]]
+    lo, hi = f.min() * NEAR_FACTOR, f.max() / NEAR_FACTOR
+    idx = [i for i in range(1, len(u) - 1)
+           if lo < f[i] < hi and u[i] > u[i - 1] and u[i] >= u[i + 1]]
     if not idx:
         return None
     i = max(idx, key=lambda j: u[j])
