@@ -41,7 +41,7 @@ import numpy as np
 import scipy.linalg
 
 from .channels import CL_INPUTS, CL_OUTPUTS, CURRENTS, FEEDBACK, ONE, POSITIONS
-from .identification import IdentifiedModel
+from .identification import IdentifiedModel, nrmse_fit
 
 __all__ = [
     "StabilityReport",
@@ -54,6 +54,8 @@ __all__ = [
     "lti_initial_state",
     "simulate_closed_loop",
     "replay",
+    "replay_from_operating_point",
+    "replay_fits",
     "to_continuous",
     "d2c_error",
     "d2c_pole_sensitivity",
@@ -334,6 +336,26 @@ def replay(sys: control.StateSpace, arrays: Mapping[str, np.ndarray], x0=None) -
         raise ValueError(f"replay: missing column(s) {', '.join(missing)}")
     return simulate_closed_loop(sys, arrays["t"], arrays["r_x"], arrays["r_y"], arrays.get("inj_x"),
                                 arrays.get("inj_y"), x0=x0)
+
+
+def replay_from_operating_point(sys: control.StateSpace, arrays: Mapping[str, np.ndarray]) -> dict:
+    """:func:`replay` of a record that starts at its settled operating point.
+
+    The nonlinear runs start from the operating point with no injection (the pre-roll), so the
+    loop starts at its equilibrium for the references at t = 0 and zero injection
+    (:func:`lti_initial_state`), not for the first input sample (which would put a pulse's DC
+    response into the initial state).
+    """
+    x0 = lti_initial_state(sys, float(np.ravel(arrays["r_x"])[0]), float(np.ravel(arrays["r_y"])[0]))
+    return replay(sys, arrays, x0=x0)
+
+
+def replay_fits(sys: control.StateSpace, arrays: Mapping[str, np.ndarray],
+                channels: Sequence[str] = ("x_meas", "y_meas")) -> dict:
+    """Fit (:func:`~ssamb.identification.nrmse_fit`, %) per channel of
+    :func:`replay_from_operating_point` against the record: channel -> fit."""
+    out = replay_from_operating_point(sys, arrays)
+    return {c: float(nrmse_fit(np.asarray(arrays[c], float), out[c])) for c in channels}
 
 
 # ----------------------------------------------------------------------------------------

@@ -35,7 +35,7 @@ import numpy as np
 from .channels import CURRENTS, DELTA_CHANNELS, ONE, delta_channels
 from .closed_loop import as_statespace, fig3_loop
 
-__all__ = ["CASES", "case_subsystems", "case_structure", "uncertainty_loop", "n11_function"]
+__all__ = ["CASES", "case_subsystems", "case_structure", "uncertainty_loop", "n11_channels", "n11_function"]
 
 #: The uncertainty cases: one subsystem, or all three block-diagonally.
 CASES = ("selfsensing", "amplifier", "plant", "all")
@@ -74,6 +74,21 @@ def uncertainty_loop(plant, amplifier, selfsensing, pid_x, pid_y) -> control.Sta
     return loop
 
 
+def n11_channels(loop: control.StateSpace, case: str) -> tuple[list, list, list]:
+    """Indices of the Delta inputs u (loop outputs, rows of N11) and of the Delta outputs d
+    (loop inputs ``d_*``, columns) of a case, in block order, and the subsystem of each row."""
+    ss_in = getattr(loop, "info_ss_input", "i_ypos")
+    rows, cols, wrow = [], [], []
+    for k in case_subsystems(case):
+        u, d = delta_channels(k, ss_in)
+        rows += list(u)
+        cols += ["d_" + c for c in d]
+        wrow += [k] * len(u)
+    ri = [list(loop.output_labels).index(r) for r in rows]
+    ci = [list(loop.input_labels).index(c) for c in cols]
+    return ri, ci, wrow
+
+
 def n11_function(loop: control.StateSpace, weights: Mapping[str, control.LTI], case: str,
                  scale: float = 1.0):
     r"""Callable ``f(hz) -> N11(j 2 pi hz)`` for a case (complex matrix, mussv shape).
@@ -82,26 +97,17 @@ def n11_function(loop: control.StateSpace, weights: Mapping[str, control.LTI], c
     continuous equivalent (evaluated at :math:`s = j\omega`); the weights are continuous.
     Rows: Delta inputs u in block order; columns: Delta outputs d in block order.
     """
-    ss_in = getattr(loop, "info_ss_input", "i_ypos")
-    rows, cols, wrow = [], [], []
-    for k in case_subsystems(case):
-        u, d = delta_channels(k, ss_in)
-        if k not in weights:
-            raise ValueError(f"no uncertainty weight for subsystem '{k}'")
-        rows += list(u)
-        cols += ["d_" + c for c in d]
-        wrow += [k] * len(u)
-    ri = [list(loop.output_labels).index(r) for r in rows]
-    ci = [list(loop.input_labels).index(c) for c in cols]
+    ri, ci, wrow = n11_channels(loop, case)
+    missing = [k for k in dict.fromkeys(wrow) if k not in weights]
+    if missing:
+        raise ValueError(f"no uncertainty weight for subsystem '{missing[0]}'")
     dt = loop.dt
 
     def f(hz: float) -> np.ndarray:
         w = 2 * np.pi * hz
         s = 1j * w
         arg = np.exp(s * dt) if dt else s
-        T = np.asarray(loop(arg))
-        if T.ndim == 1:
-            T = T.reshape(len(loop.output_labels), len(loop.input_labels))
+        T = np.asarray(loop(arg)).reshape(len(loop.output_labels), len(loop.input_labels))
         T = T[np.ix_(ri, ci)]
         wv = np.array([complex(np.squeeze(weights[k](s))) for k in wrow])
         return scale * wv[:, None] * T

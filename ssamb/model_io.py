@@ -15,17 +15,21 @@ from .identification import IdentifiedModel
 from .io import DataError, atomic_path, load_npz, read_json, save_npz, write_json
 
 __all__ = ["Failed", "save_failed", "write_failed", "check_failed", "failure_reason", "load_record",
-           "save_model", "load_model", "save_statespace", "load_statespace", "save_weight", "load_weight"]
+           "save_model", "load_model", "save_candidates", "load_candidates", "save_statespace", "load_statespace",
+           "save_weight", "load_weight"]
 
 _ARRAYS = ("A", "B", "C", "D", "u_op", "y_op")
 
 
-def save_model(path: str | Path, model: IdentifiedModel) -> None:
-    """Write ``model`` to ``path`` (.npz arrays) with a JSON sidecar (names, method, hash ...)."""
+def _model_arrays(model: IdentifiedModel) -> dict:
     arrays = {k: np.asarray(getattr(model, k), dtype=float) for k in _ARRAYS}
     if model.K is not None:
         arrays["K"] = np.asarray(model.K, dtype=float)
-    meta = {
+    return arrays
+
+
+def _model_meta(model: IdentifiedModel) -> dict:
+    return {
         "kind": "ssamb.IdentifiedModel",
         "dt": model.dt,
         "fs_hz": model.fs_hz,
@@ -40,7 +44,11 @@ def save_model(path: str | Path, model: IdentifiedModel) -> None:
         "spectral_radius": model.spectral_radius,
         "info": model.info,
     }
-    save_npz(path, arrays, meta)
+
+
+def save_model(path: str | Path, model: IdentifiedModel) -> None:
+    """Write ``model`` to ``path`` (.npz arrays) with a JSON sidecar (names, method, hash ...)."""
+    save_npz(path, _model_arrays(model), _model_meta(model))
 
 
 class Failed(DataError):
@@ -107,6 +115,10 @@ def load_model(path: str | Path) -> IdentifiedModel:
     arrays, meta = load_record(path)
     if meta.get("kind") != "ssamb.IdentifiedModel":
         raise DataError(f"{path}: not an identified-model file (kind={meta.get('kind')!r})")
+    return _model_from(arrays, meta)
+
+
+def _model_from(arrays: Mapping, meta: Mapping) -> IdentifiedModel:
     return IdentifiedModel(
         A=np.atleast_2d(arrays["A"]), B=np.atleast_2d(arrays["B"]), C=np.atleast_2d(arrays["C"]),
         D=np.atleast_2d(arrays["D"]), dt=float(meta["dt"]), method=meta["method"],
@@ -115,6 +127,38 @@ def load_model(path: str | Path) -> IdentifiedModel:
         y_op=np.atleast_1d(arrays["y_op"]), K=arrays.get("K"), data_hash=meta["data_hash"],
         ss_f=int(meta["ss_f"]), ss_p=int(meta["ss_p"]), info=meta.get("info", {}),
     )
+
+
+def save_candidates(path: str | Path, subsystem: str, candidates) -> None:
+    """Write the candidate models of one subsystem (:class:`ssamb.identification.joint.Candidate`,
+    failed ones with their error) to one NPZ: arrays ``c<i>_<A|B|C|D|u_op|y_op|K>`` and a JSON
+    list of the settings, errors and model metadata."""
+    arrays, items = {}, []
+    for i, c in enumerate(candidates):
+        item = {"settings": dict(c.settings), "error": c.error, "same_as": c.same_as, "model": None}
+        if c.model is not None:
+            arrays.update({f"c{i}_{k}": v for k, v in _model_arrays(c.model).items()})
+            item["model"] = _model_meta(c.model)
+        items.append(item)
+    save_npz(path, arrays, {"kind": "ssamb.Candidates", "subsystem": subsystem, "candidates": items})
+
+
+def load_candidates(path: str | Path) -> list:
+    """Read the candidates written by :func:`save_candidates` (DataError if not such a file)."""
+    from .identification.joint import Candidate
+
+    arrays, meta = load_record(path)
+    if meta.get("kind") != "ssamb.Candidates":
+        raise DataError(f"{path}: not a candidate-models file (kind={meta.get('kind')!r})")
+    out = []
+    for i, item in enumerate(meta["candidates"]):
+        model = None
+        if item["model"] is not None:
+            model = _model_from({k[len(f"c{i}_"):]: v for k, v in arrays.items() if k.startswith(f"c{i}_")},
+                                item["model"])
+        out.append(Candidate(meta["subsystem"], item["settings"], model, item["error"], item["same_as"]))
+    return out
+
 
 def save_statespace(path: str | Path, sys: control.StateSpace, meta: Mapping | None = None) -> None:
     """Write a named state-space system (NPZ arrays + JSON sidecar with names and dt)."""

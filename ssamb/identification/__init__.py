@@ -2,7 +2,8 @@ r"""Per-subsystem black-box identification with SIPPY (paper section 3).
 
 Modules: :mod:`.data` (fit metric, checks, excitation), :mod:`.model` (the identified affine
 model), :mod:`.subspace` (:func:`identify`), :mod:`.selection` (order scan, method comparison),
-:mod:`.sippy_fast` (compiled SIPPY loops). Model files: :mod:`ssamb.model_io`.
+:mod:`.joint` (candidates chosen by the assembled loop), :mod:`.sippy_fast` (compiled SIPPY
+loops). Model files: :mod:`ssamb.model_io`.
 
 The paper identifies three discrete-time state-space models at the controller rate
 (83.3 kHz) from closed-loop data of the nonlinear simulator (Fig. 3):

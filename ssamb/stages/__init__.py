@@ -10,6 +10,7 @@ module          rule                           numerics
 =============== ============================== ==========================================
 simulate        ``simulate`` (per experiment)   :mod:`ssamb.sim`
 identify        ``identify`` (per subsystem)    :mod:`ssamb.identification`
+select          ``select`` (paper's way)        :mod:`ssamb.identification.joint`
 assemble        ``assemble``                    :mod:`ssamb.closed_loop`
 uncertainty     ``uncertainty`` (per subsystem) :mod:`ssamb.uncertainty`
 mu              ``mu`` (per case)               :mod:`ssamb.generalized_plant`, :mod:`ssamb.robustness`

@@ -19,13 +19,7 @@ from typing import Mapping
 import numpy as np
 
 from ..channels import CL_OUTPUTS
-from ..closed_loop import (
-    assemble_closed_loop,
-    d2c_summary,
-    lti_initial_state,
-    simulate_closed_loop,
-    stability,
-)
+from ..closed_loop import assemble_closed_loop, d2c_summary, replay_from_operating_point, stability
 from ..identification import nrmse_fit
 from ..io import write_json
 from ..model_io import Failed, load_model, load_record, save_statespace
@@ -70,8 +64,7 @@ def _fig4(cl, fig4_npz, out_fig) -> dict:
             nan = np.full_like(np.asarray(nl["t"], float), np.nan)
             fig4(nl, {"x_meas": nan, "y_meas": nan}, {"x_meas": np.nan, "y_meas": np.nan}, out_fig)
         return {}
-    x0 = lti_initial_state(cl, float(nl["r_x"][0]), float(nl["r_y"][0]))
-    out = simulate_closed_loop(cl, nl["t"], nl["r_x"], nl["r_y"], nl.get("inj_x"), nl.get("inj_y"), x0=x0)
+    out = replay_from_operating_point(cl, nl)
     fits = {c: float(nrmse_fit(nl[c], out[c])) for c in CL_OUTPUTS}
     if out_fig is not None:
         fig4(nl, out, fits, out_fig)

@@ -74,9 +74,29 @@ def _paper_variant(est_npz, val_npz, subsystem: str, variant: str, order: int, m
             "spectral_radius": m2.spectral_radius, "stable": bool(m2.is_stable)}
 
 
+def _loop_candidates(est, sel, subsystem: str, variant: str, order: int, params: Mapping, fs: float,
+                     out_candidates) -> dict:
+    """Candidates for the selection by the assembled loop (``identification.selection: loop``):
+    the grid ``identification.loop_selection``, reusing the method comparison's models; written
+    with :func:`ssamb.model_io.save_candidates`. Returns their summary for the evidence JSON."""
+    from ..channels import structure
+    from ..identification.joint import Candidate, candidate_settings, identify_candidates
+    from ..model_io import save_candidates
+
+    base = {"ss_f": int(params["ss_f"]), "ss_p": int(params["ss_p"]), "A_stability": False, "refine": "auto"}
+    known = [Candidate(subsystem, {"method": r.method, **base}, r.model, r.error) for r in sel.results]
+    settings = candidate_settings(params["loop_selection"], subsystem)
+    cands = identify_candidates(est.u, est.y, subsystem, order, settings, fs, est.input_names, est.output_names,
+                                input_directions=structure(subsystem, variant).input_directions, known=known,
+                                progress=True)
+    save_candidates(out_candidates, subsystem, cands)
+    return {"n": len(cands), "candidates": [c.as_dict() for c in cands]}
+
+
 def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsystem: str,
                  params: Mapping, out_model: str | Path, out_json: str | Path,
-                 out_variant: str | Path | None = None, fig_dir: str | Path | None = None) -> dict:
+                 out_variant: str | Path | None = None, fig_dir: str | Path | None = None,
+                 out_candidates: str | Path | None = None) -> dict:
     """Identify one subsystem; write the selected model, its evidence and figures.
 
     Parameters
@@ -93,6 +113,10 @@ def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsyst
         The paper's structural variant of the model (or a failed-fit file).
     fig_dir : path, optional
         Where to write ``<subsystem>_orders.png`` and ``<subsystem>_validation.png``.
+    out_candidates : path, optional
+        Where to write the candidate models of the grid ``params['loop_selection']`` for the
+        selection by the assembled loop (``identification.selection: loop``,
+        :func:`ssamb.stages.select.run_select`).
     """
     key, ours, paper = VARIANTS[subsystem]
     sub = dict(params[subsystem])
@@ -105,8 +129,12 @@ def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsyst
     other = paper if variant != paper else ours
     variant_info = _paper_variant(estimation_npz, validation_npz, subsystem, other, order, sel.method, kw,
                                   out_variant)
+    loop_cands = None
+    if out_candidates is not None:
+        loop_cands = _loop_candidates(est, sel, subsystem, variant, order, params, fs, out_candidates)
     save_model(out_model, sel.model)
     info = {"subsystem": subsystem, "variant": {key: variant}, "paper_variant": variant_info,
+            "loop_candidates": loop_cands,
             **model_summary(sel, val, fs), "order_scan": None if scan is None else scan.as_dict(),
             "estimation_samples": int(len(est.u)), "validation_samples": int(len(val.u))}
     write_json(out_json, info)

@@ -4,7 +4,9 @@ The generalized plant of Fig. 6 (:mod:`ssamb.generalized_plant`) for a case (sel
 amplifier, plant, or all three block-diagonally), :math:`N_{11}` over a log grid refined
 around the peak, the structured singular value bounds (:func:`ssamb.mu.mussv`), the peak, its
 frequency, the margin and the factor the weights must be scaled by to bring the peak to 1
-(the paper needed 0.0012).
+(the paper needed 0.0012), and the computed cause of the peak
+(:func:`ssamb.peak_cause.peak_cause`: least-damped closed-loop poles, weight features, plant
+modes, counterfactuals).
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import numpy as np
 from ..generalized_plant import case_structure, uncertainty_loop
 from ..io import save_npz, write_json
 from ..model_io import load_model, load_weight
+from ..peak_cause import peak_cause
 from ..robustness import log_grid, mu_for_case
 from ..sim.controller import pid_discrete
 
@@ -38,7 +41,8 @@ def run_mu(models: Mapping[str, str | Path], weights: Mapping[str, str | Path], 
     sweep = mu_for_case(loop, w, case, log_grid(params["f_min_hz"], params["f_max_hz"], params["n_points"]),
                         refine=bool(params["refine"]))
     info = {"case": case, "blk": case_structure(case), **sweep.as_dict(),
-            "robustly_stable": bool(sweep.peak < 1.0), "weights": sorted(w)}
+            "robustly_stable": bool(sweep.peak < 1.0), "weights": sorted(w),
+            "peak_cause": peak_cause(loop, w, case, sweep, m["plant"])}
     save_npz(out_npz, {"freqs_hz": np.asarray(sweep.freqs_hz), "upper": np.asarray(sweep.upper),
                        "lower": np.asarray(sweep.lower)}, {"case": case})
     write_json(out_json, info)
