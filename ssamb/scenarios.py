@@ -162,6 +162,10 @@ def _pid(cfg) -> dict:
 
 
 def _identified(cfg) -> list:
+    """The stage outputs that hold a run's three models: the identification's, or the selection's
+    by the assembled loop (``identification.selection: loop``)."""
+    if cfg["identification"].get("selection", "subsystem") == "loop":
+        return [("select", {})]
     return [("identify", {"subsystem": s}) for s in SUBSYSTEMS]
 
 
@@ -180,10 +184,12 @@ CHAIN: dict[str, Callable] = {
     "identify": lambda cfg, subsystem: (cfg["identification"], [
         ("simulate", {"experiment": _exp(cfg, "identification.estimation")}),
         ("simulate", {"experiment": _exp(cfg, "identification.validation")})]),
+    "select": lambda cfg: ([cfg["identification"], _pid(cfg)], [("identify", {"subsystem": s}) for s in SUBSYSTEMS]
+                           + [("simulate", {"experiment": _exp(cfg, "identification.validation")})]),
     "assemble": lambda cfg: ([cfg["assembly"], _pid(cfg)],
                              _identified(cfg) + [("simulate", {"experiment": _exp(cfg, "assembly.fig4")})]),
     "uncertainty": lambda cfg, subsystem: (cfg["uncertainty"], [
-        ("assemble", {}), ("simulate", {"experiment": _exp(cfg, "uncertainty.experiment")})]),
+        ("assemble", {}), ("simulate", {"experiment": _exp(cfg, "uncertainty.experiment")})] + _identified(cfg)),
     "mu": lambda cfg, case: ([_mu_grid(cfg), _pid(cfg)], _identified(cfg) + [
         ("uncertainty", {"subsystem": s}) for s in _mu_subsystems(case)]),
     "baseline": lambda cfg: ([_mu_grid(cfg), _pid(cfg)], _identified(cfg)),

@@ -71,8 +71,8 @@ def _order_rows(S, P) -> list:
 
 def _mu_rows(S, P, study) -> list:
     ss, pss = S["mu"].get("selfsensing") or {}, _get(P, "mu", "selfsensing") or {}
-    cause = (ss.get("cause") or {}).get("summary") or "cause not computed"
-    pcause = (_get(P, "mu_peak_cause") or {}).get("summary") or "cause not computed"
+    cause = (ss.get("cause") or {}).get("sentence") or "cause not computed"
+    pcause = (_get(P, "mu_peak_cause") or {}).get("sentence") or "cause not computed"
     return [("weight fit, largest deviation from the envelope", f"<= {PAPER['weight_fit_max_db'][0]} dB",
              _f(S["weight_fit_max_db"], 3, " dB"), _f(_get(P, "weight_fit_max_db"), 3, " dB"),
              "Both fits are held to the same tolerance (config uncertainty.tol_db)."),

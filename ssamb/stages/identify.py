@@ -76,15 +76,19 @@ def _paper_variant(est_npz, val_npz, subsystem: str, variant: str, order: int, m
 
 def _loop_candidates(est, sel, subsystem: str, variant: str, order: int, params: Mapping, fs: float,
                      out_candidates) -> dict:
-    """Candidates for the selection by the assembled loop (``identification.selection: loop``):
-    the grid ``identification.loop_selection``, reusing the method comparison's models; written
-    with :func:`ssamb.model_io.save_candidates`. Returns their summary for the evidence JSON."""
+    """Candidates for the selection by the assembled loop: with ``identification.selection:
+    loop`` the grid ``identification.loop_selection`` (the method comparison's models reused),
+    else the compared models only; written with :func:`ssamb.model_io.save_candidates`. Returns
+    their summary for the evidence JSON."""
     from ..channels import structure
     from ..identification.joint import Candidate, candidate_settings, identify_candidates
     from ..model_io import save_candidates
 
     base = {"ss_f": int(params["ss_f"]), "ss_p": int(params["ss_p"]), "A_stability": False, "refine": "auto"}
     known = [Candidate(subsystem, {"method": r.method, **base}, r.model, r.error) for r in sel.results]
+    if params.get("selection", "subsystem") != "loop":  # the compared models only (no grid to fit)
+        save_candidates(out_candidates, subsystem, known)
+        return {"n": len(known), "candidates": [c.as_dict() for c in known]}
     settings = candidate_settings(params["loop_selection"], subsystem)
     cands = identify_candidates(est.u, est.y, subsystem, order, settings, fs, est.input_names, est.output_names,
                                 input_directions=structure(subsystem, variant).input_directions, known=known,

@@ -40,7 +40,7 @@ def _mu_entry(m: Mapping | None) -> dict | None:
     if m is None:
         return None
     return {"peak": m["peak"], "peak_hz": m["peak_hz"], "margin": m["margin"],
-            "scale_for_unity": m["scale_for_unity"], **({"cause": m["cause"]} if "cause" in m else {})}
+            "scale_for_unity": m["scale_for_unity"], "cause": m.get("peak_cause")}
 
 
 def headline(asm, ev, unc, mu, base, val) -> dict:
@@ -86,7 +86,7 @@ def build_summary(assemble_json: str | Path, evidence_jsons: Mapping[str, str | 
                   baseline_json: str | Path, validation_json: str | Path,
                   closeloop_json: str | Path | None = None, sim_metas: Sequence[str | Path] = (),
                   closeloop_all: Mapping[str, str | Path] | None = None, paper_json: str | Path | None = None,
-                  study_json: str | Path | None = None) -> dict:
+                  study_json: str | Path | None = None, selection_json: str | Path | None = None) -> dict:
     """Collect one run's stage outputs (and, for the default run, the paper's-way run's summary and
     the study) into the summary dictionary."""
     r = _Inputs()
@@ -103,9 +103,19 @@ def build_summary(assemble_json: str | Path, evidence_jsons: Mapping[str, str | 
         summary["sensitivity"] = read_json(study_json).get("sensitivity")
     summary["failed"] = r.failed
     summary["details"] = _details(asm, ev, unc, mu, base, val)
+    summary["details"]["selection"] = _selection(r.read(selection_json, "select"))
     summary["details"]["closeloop_datasets"] = {k: read_json(v) for k, v in (closeloop_all or {}).items()}
     summary["details"]["simulations"] = {Path(p).stem: _sim_brief(read_json(p)) for p in sim_metas}
     return summary
+
+
+def _selection(sel: Mapping | None) -> dict | None:
+    """The selection by the assembled loop, briefly: the rule, the winner and how many of the
+    combinations gave a stable loop (the full table stays in ``select/select.json``)."""
+    if sel is None:
+        return None
+    keep = ("rule", "selected", "best", "n_combinations", "n_stable", "failed", "error", "validation")
+    return {k: sel.get(k) for k in keep if k in sel}
 
 
 def paper_way(s: Mapping) -> dict:
@@ -118,7 +128,8 @@ def paper_way(s: Mapping) -> dict:
     return {**{k: s.get(k) for k in keys}, "stable": asm.get("stable"),
             "spectral_radius": asm.get("spectral_radius"), "mu_peak_cause": mu_ss.get("cause"),
             "structure": asm.get("subsystem_inputs"),
-            "selection": (s.get("details") or {}).get("identification")}
+            "selection": (s.get("details") or {}).get("selection"),
+            "identification": (s.get("details") or {}).get("identification")}
 
 
 def _sim_brief(meta: Mapping) -> dict:

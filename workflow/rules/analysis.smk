@@ -17,6 +17,7 @@ rule identify:
         paper_variant="results/{run}ident/{subsystem}_paper.npz",
         fig_orders="results/{run}ident/{subsystem}_orders.png",
         fig_validation="results/{run}ident/{subsystem}_validation.png",
+        candidates="results/{run}ident/{subsystem}_candidates.npz",
     params:
         identification=lambda wc: cfg_of(wc)["identification"],
     log:
@@ -29,6 +30,28 @@ rule identify:
         runtime=20,
     script:
         "../scripts/identify.py"
+
+
+rule select:
+    """The three models chosen by the stability and validation fit of the assembled loop
+    (config identification.selection: loop; the paper's structures need it)."""
+    input:
+        candidates=lambda wc: [out("identify", wc.run, f"ident/{s}_candidates.npz", subsystem=s) for s in SUBSYSTEMS],
+        val=lambda wc: sim_file(wc.run, cfg_of(wc)["identification"]["validation"]),
+    output:
+        models=expand("results/{{run}}select/{subsystem}.npz", subsystem=SUBSYSTEMS),
+        json="results/{run}select/select.json",
+    params:
+        pid=section("table1", "controller"),
+    log:
+        "results/{run}logs/select.log",
+    benchmark:
+        "results/{run}benchmarks/select.tsv"
+    resources:
+        mem_mb=3000,
+        runtime=20,
+    script:
+        "../scripts/select.py"
 
 
 rule assemble:
@@ -60,7 +83,7 @@ rule uncertainty:
     input:
         multisine=lambda wc: sim_file(wc.run, cfg_of(wc)["uncertainty"]["experiment"]),
         closed_loop=lambda wc: out("assemble", wc.run, "model/closed_loop.npz"),
-        selfsensing=lambda wc: out("identify", wc.run, "ident/selfsensing.npz", subsystem="selfsensing"),
+        selfsensing=lambda wc: model_files(wc.run)[SUBSYSTEMS.index("selfsensing")],
     output:
         weight="results/{run}uncertainty/{subsystem}_weight.npz",
         json="results/{run}uncertainty/{subsystem}.json",

@@ -84,6 +84,10 @@ def sim_file(run, experiment):
 
 
 def model_files(run, suffix=""):
+    """The three models of a run: identified per subsystem, or selected by the assembled loop
+    (config identification.selection: loop); ``suffix='_paper'``: the other structures."""
+    if not suffix and RUN_CONFIGS[run]["identification"].get("selection", "subsystem") == "loop":
+        return [out("select", run, f"select/{s}.npz") for s in SUBSYSTEMS]
     return [out("identify", run, f"ident/{s}{suffix}.npz", subsystem=s) for s in SUBSYSTEMS]
 
 

@@ -30,6 +30,8 @@ def summary_inputs(wc):
         "validation": out("validate", run, "validation/sweep.json"),
         "sims": [sim_file(run, e).replace(".npz", ".json") for e in run_experiments(run)],
     }
+    if RUN_CONFIGS[run]["identification"].get("selection", "subsystem") == "loop":
+        files["selection"] = out("select", run, "select/select.json")
     if not run:
         files["closeloop"] = expand("results/closeloop/{dataset}/closeloop.json", dataset=CLOSELOOP_DATASETS)
         if "runs/paper/" in SCENARIO_RUNS:

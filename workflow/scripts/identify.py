@@ -10,4 +10,5 @@ with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log
     inp, out, wc, par = snakemake.input, snakemake.output, snakemake.wildcards, snakemake.params  # noqa: F821
     run_guarded("identify", out, run_identify, inp.est, inp.val, wc.subsystem, par.identification, out.model,
-                out.evidence, out_variant=out.paper_variant, fig_dir=Path(out.fig_orders).parent, tolerate=bool(wc.run))
+                out.evidence, out_variant=out.paper_variant, fig_dir=Path(out.fig_orders).parent,
+                out_candidates=out.candidates, tolerate=bool(wc.run))

@@ -21,4 +21,5 @@ with open(snakemake.log[0], "w") as log:  # noqa: F821
         sim_metas=list(inp.sims),
         paper_json=inp.get("paper"),
         study_json=inp.get("study"),
+        selection_json=inp.get("selection"),
     )

@@ -20,13 +20,18 @@ def paper_way(ctx: Context) -> Section:
     rows = [["assembled loop stable", P.get("stable")], ["spectral radius", P.get("spectral_radius")],
             ["fit x / y (%)", f"{P['fit_pct']['x']} / {P['fit_pct']['y']}" if P.get("fit_pct") else None],
             ["self-sensing μ peak", (P.get("mu") or {}).get("selfsensing", {}) and P["mu"]["selfsensing"]["peak"]],
-            ["its cause (computed)", (P.get("mu_peak_cause") or {}).get("summary")]]
+            ["its cause (computed)", (P.get("mu_peak_cause") or {}).get("sentence")]]
     rows += [[f"failed: {k}", v] for k, v in (P.get("failed") or {}).items()]
+    S = P.get("selection") or {}
+    if S:
+        rows += [["selection by the assembled loop", S.get("rule")],
+                 ["stable combinations", f"{S.get('n_stable')} of {S.get('n_combinations')}"],
+                 ["selected candidates", ", ".join(f"{k}: {v}" for k, v in (S.get("selected") or {}).items())]]
     sel = [[k, v.get("method"), ", ".join(v.get("inputs", [])), v.get("mean_fit_pct"), v.get("spectral_radius")]
-           for k, v in (P.get("selection") or {}).items()]
+           for k, v in (P.get("identification") or {}).items()]
     return sec.add(Table(["quantity", "value"], rows),
                    Table(["subsystem", "method", "inputs", "mean validation fit (%)", "spectral radius"], sel,
-                         caption="Models of the paper's way"))
+                         caption="The paper's structures identified per subsystem (before the selection)"))
 
 
 def sensitivity(ctx: Context) -> Section:
