@@ -191,7 +191,7 @@ def _verdict(a: dict, edge, plant_crit) -> tuple[str, str]:
     text += (f"; there |W| = {a['weight_mag']:.3g} and the unweighted transfer {a['loop_gain_at_peak']:.3g}; "
              f"with a flat weight the peak is at {flat_hz:.3g} Hz")
     if plant_crit is not None:
-        text += f"; the plant's critical frequency sqrt(ks/m)/2pi is {plant_crit:.3g} Hz"
+        text += f"; the identified plant model's unstable pole (the critical frequency sqrt(ks/m)/2pi) is at {plant_crit:.3g} Hz"
     return cause, text + f"; cause: {cause}"
 
 
