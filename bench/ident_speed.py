@@ -38,7 +38,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from ssamb.identification import FS_HZ_DEFAULT, PAPER_ORDERS, SUBSYSTEMS, identify, subsystem_io  # noqa: E402
+from ssamb.channels import SUBSYSTEMS, VARIANTS, structure, subsystem_data  # noqa: E402
+from ssamb.identification import FS_HZ_DEFAULT, identify  # noqa: E402
+from ssamb.paper import PAPER  # noqa: E402
+
+#: the paper's structure of each subsystem (its I/O) and its order (section 3)
+PAPER_STRUCTURES = {sub: structure(sub, VARIANTS[sub][2]) for sub in SUBSYSTEMS}
+PAPER_ORDERS = {sub: int(PAPER[f"order_{sub}"][0]) for sub in SUBSYSTEMS}
 
 REAL_DATA = ROOT / "results" / "sim" / "id_pulses.npz"
 
@@ -87,14 +93,14 @@ def synthetic_data(duration_s: float, fs_hz: float, seed: int = 1) -> dict:
         "selfsensing": (np.array([3.57]), 0.3, 1e-5, 0.0),
     }
     for sub, (u_op, amp, y_scale, y_off) in specs.items():
-        m, l_ = len(SUBSYSTEMS[sub]["inputs"]), len(SUBSYSTEMS[sub]["outputs"])
+        m, l_ = len(PAPER_STRUCTURES[sub].inputs), len(PAPER_STRUCTURES[sub].outputs)
         A, B, C = _random_stable(PAPER_ORDERS[sub], m, l_, rng, fs_hz)
         u = u_op + amp * _pulses(n_samples, m, rng, fs_hz)
         w = (u - u_op) / np.where(np.ravel(amp) > 0, amp, 1.0)
         _, y, _ = scipy.signal.dlsim((A, B, C, np.zeros((l_, m)), 1.0), w)
         y = y_off + y_scale * y / y.std(axis=0)
         y = y + 1e-3 * y_scale * rng.standard_normal(y.shape)
-        out[sub] = (u, y, SUBSYSTEMS[sub]["inputs"], SUBSYSTEMS[sub]["outputs"])
+        out[sub] = (u, y, PAPER_STRUCTURES[sub].inputs, PAPER_STRUCTURES[sub].outputs)
     return out
 
 
@@ -103,7 +109,7 @@ def _worker(args, queue):
     # warm-up outside the timing: SIPPY's import (control.matlab, ...) and the compiled kernels
     import sippy_unipi  # noqa: F401
 
-    from ssamb.identification import _jit_kernels
+    from ssamb.identification.sippy_fast import _jit_kernels
 
     _jit_kernels()
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -139,7 +145,7 @@ def run(args) -> list[dict]:
 
         arrays, _ = load_npz(path)
         fs_hz = float(arrays.get("fs_hz", FS_HZ_DEFAULT))
-        data = {sub: tuple(subsystem_io(arrays, sub)) for sub in SUBSYSTEMS}
+        data = {sub: (*subsystem_data(arrays, st), st.inputs, st.outputs) for sub, st in PAPER_STRUCTURES.items()}
         print(f"data: {path} (real simulator data), fs = {fs_hz:g} Hz")
     else:
         fs_hz = FS_HZ_DEFAULT
