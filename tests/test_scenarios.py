@@ -24,7 +24,7 @@ def cfg():
     c["study"] = {"overrides": {"mu.cases": ["selfsensing"]},
                   "assumptions": {"bias": {"key": "table1.i_bias_a", "values": [2.5, 3.5]},
                                   "law": {"key": "experiments.sweep.excitation.law", "values": ["log"]}},
-                  "pairs": [["bias", "law"]]}
+                  "pairs": [["bias", "law"]], "criteria": c["study"]["criteria"]}
     return c
 
 
@@ -109,3 +109,14 @@ def test_collect_study_reports_a_failed_variant(tmp_path, cfg):
     assert v["failed"] == {"identify/amplifier": "LinAlgError"} and v["fit_y_pct"] is None
     assert res["variants"]["study-baseline"]["critical_nonlinear_um"] == pytest.approx(130.0)
     assert (tmp_path / "tornado.png").stat().st_size > 1000
+
+
+def test_study_answers_follow_the_configured_criteria():
+    from ssamb.stages.study import answers
+
+    q = {"delevitation_nonlinear_s": 0.18, "delevitation_nominal_lti_s": None, "delevitation_augmented_lti_s": None,
+         "mu_peak_hz": 3.5, "fit_y_pct": 58.0}
+    loose = answers({"v": q}, {"mu_peak_factor": 2.0, "fit_y_points": 10.0})
+    tight = answers({"v": q}, {"mu_peak_factor": 1.5, "fit_y_points": 5.0})
+    assert loose == {"delevitation": ["v"], "mu_peak_near_2hz": ["v"], "fit_y_near_paper": ["v"]}
+    assert tight == {"delevitation": ["v"], "mu_peak_near_2hz": [], "fit_y_near_paper": []}

@@ -53,19 +53,20 @@ def _near(v, target: float, factor: float) -> bool:
     return v is not None and target / factor <= v <= target * factor
 
 
-def answers(variants: Mapping[str, Mapping]) -> dict:
+def answers(variants: Mapping[str, Mapping], criteria: Mapping) -> dict:
     """Which variants reproduce each of the paper's headlines (computed from their numbers):
     the nonlinear model delevitates in the sweep while the nominal and augmented LTI models do
-    not; the self-sensing μ peak near the paper's ~2 Hz (within a factor 2); the y fit within
-    10 points of the paper's."""
+    not; the self-sensing μ peak within ``criteria["mu_peak_factor"]`` of the paper's ~2 Hz; the
+    y fit within ``criteria["fit_y_points"]`` percentage points of the paper's (config
+    ``study.criteria``)."""
     out = {"delevitation": [], "mu_peak_near_2hz": [], "fit_y_near_paper": []}
     for name, q in variants.items():
         if (q["delevitation_nonlinear_s"] is not None and q["delevitation_nominal_lti_s"] is None
                 and q["delevitation_augmented_lti_s"] is None):
             out["delevitation"].append(name)
-        if _near(q["mu_peak_hz"], PAPER["mu_peak_hz"][0], 2.0):
+        if _near(q["mu_peak_hz"], PAPER["mu_peak_hz"][0], float(criteria["mu_peak_factor"])):
             out["mu_peak_near_2hz"].append(name)
-        if q["fit_y_pct"] is not None and abs(q["fit_y_pct"] - PAPER["fit_y_pct"][0]) <= 10.0:
+        if q["fit_y_pct"] is not None and abs(q["fit_y_pct"] - PAPER["fit_y_pct"][0]) <= float(criteria["fit_y_points"]):
             out["fit_y_near_paper"].append(name)
     return out
 
@@ -115,7 +116,7 @@ def collect_study(study: Mapping, runs: Sequence[str], summaries: Sequence[str |
     baseline = quant.get("study-baseline", {})
     res = {"variants": {n: {"overrides": overrides.get(n), **quant[n]} for n in names},
            "assumptions": assumptions, "pairs": [n for n in names if "+" in n], "baseline": "study-baseline",
-           "answers": answers(quant)}
+           "criteria": dict(study["criteria"]), "answers": answers(quant, study["criteria"])}
     res["sensitivity"] = {n: {k: quant[n][k] for k in (*HEADLINES, "fit_x_pct", "stable", "failed")} for n in names}
     write_json(out_json, res)
     if out_fig is not None:

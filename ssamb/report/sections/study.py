@@ -3,6 +3,7 @@ assumption study (``snakemake --cores 2 study``)."""
 from __future__ import annotations
 
 from ..context import Context
+from ...paper import PAPER
 from ..elements import Image, Section, Table
 
 __all__ = ["paper_way", "sensitivity"]
@@ -50,9 +51,12 @@ def sensitivity(ctx: Context) -> Section:
     rows = [[n, v.get("stable"), *[v.get(k) for k in keys], "; ".join(f"{a}: {b}" for a, b in v["failed"].items())]
             for n, v in st["variants"].items()]
     ans = st["answers"]
+    crit = st["criteria"]
     text = {"delevitation": "make the nonlinear model delevitate in the sweep while the LTI models do not",
-            "mu_peak_near_2hz": "put the self-sensing μ peak within a factor 2 of the paper's ~2 Hz",
-            "fit_y_near_paper": "give a y fit within 10 points of the paper's"}
+            "mu_peak_near_2hz": f"put the self-sensing μ peak within a factor {crit['mu_peak_factor']:g} of the "
+                                f"paper's {PAPER['mu_peak_hz'][0]:g} Hz",
+            "fit_y_near_paper": f"give a y fit within {crit['fit_y_points']:g} points of the paper's "
+                                f"{PAPER['fit_y_pct'][0]:g} %"}
     return sec.add(
         Table(["variant", "LTI loop stable", "fit y (%)", "μ peak (Hz)", "μ weight scale", "critical amplitude, "
                "nonlinear (µm)", "critical amplitude, LTI (µm)", "delevitation (s)", "failed stages"], rows),
