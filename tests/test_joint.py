@@ -267,7 +267,7 @@ def test_run_identify_writes_the_candidates_of_the_grid(pid, tmp_path):
         d.pop("states")
         paths.append(tmp_path / f"{name}.npz")
         save_npz(paths[-1], {**d, "fs_hz": np.asarray(FS)})
-    params = {"ss_f": 10, "ss_p": 10, "methods": ["N4SID", "PARSIM-K"],
+    params = {"ss_f": 10, "ss_p": 10, "methods": ["N4SID", "PARSIM-K"], "selection": "loop",
               "order_scan": {"orders": [1], "duration_s": 0.02},
               "selfsensing": {"order": 1, "input": "current"},
               "loop_selection": {"methods": ["N4SID", "PARSIM-K"], "horizons": [10, 12], "a_stability": [False, True]}}
