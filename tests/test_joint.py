@@ -278,3 +278,19 @@ def test_run_identify_writes_the_candidates_of_the_grid(pid, tmp_path):
                                         "PARSIM-K f10 p10", "PARSIM-K f12 p12"]
     assert info["loop_candidates"]["n"] == 6
     assert all(c.model is not None and c.model.input_names == ("i_ypos",) for c in cands)
+
+
+def test_identify_refuses_an_experiment_in_which_the_rotor_delevitated(tmp_path):
+    from ssamb.io import DataError, save_npz
+    from ssamb.stages.identify import run_identify
+
+    n = 200
+    cols = {c: np.zeros(n) for c in ("t", "r_x", "r_y", "inj_x", "inj_y", "x_meas", "y_meas", "y_ss", "u_x", "u_y",
+                                     "i_ypos", "i_yneg", "i_xpos", "i_xneg")}
+    path = tmp_path / "id.npz"
+    save_npz(path, {**cols, "fs_hz": np.asarray(FS)}, meta={"delevitation_s": 0.0125})
+    params = {"ss_f": 10, "ss_p": 10, "methods": ["N4SID"], "order_scan": {"orders": []},
+              "selfsensing": {"order": 1}}
+    with pytest.raises(DataError, match=r"delevitated at t = 0.0125 s"):
+        run_identify(path, path, "selfsensing", params, tmp_path / "m.npz", tmp_path / "m.json")
+    assert not (tmp_path / "m.npz").exists()

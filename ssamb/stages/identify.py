@@ -27,7 +27,11 @@ __all__ = ["run_identify"]
 
 
 def _load_io(path, subsystem: str, variant: str):
-    arrays, _ = load_record(path)
+    arrays, meta = load_record(path)
+    t_del = meta.get("delevitation_s") if isinstance(meta, dict) else None
+    if t_del is not None:
+        raise DataError(f"{path}: the rotor delevitated at t = {float(t_del):.4g} s of this experiment; the "
+                        f"subsystems are identified from the levitated closed loop only")
     try:
         return subsystem_io(arrays, subsystem, variant), float(arrays["fs_hz"])
     except DataError as exc:
