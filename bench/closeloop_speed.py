@@ -48,8 +48,9 @@ def main() -> None:
     print(f"data: {args.data} ({rep['data']['duration_s']:.2f} s at {rep['data']['fs_hz']:.0f} Hz)")
     print(f"found: {', '.join(e['name'] for e in rep['effects']) or 'nothing'}; unexplained: {rep['unexplained']}")
     print(f"load average (1 min) before/after: {load_before[0]:.2f} / {load_after[0]:.2f} on {os.cpu_count()} CPUs")
-    print(f"simulations: {tm['simulations']} taking {tm['simulation_wall_s']:.1f} s of the analysis")
-    print(f"analysis (replay .. report): {tm['wall_s']:.1f} s; with loading and figures: {wall:.1f} s wall, {cpu:.1f} s CPU")
+    print(f"simulations: {tm['simulations']}; {wall / max(tm['simulations'], 1):.3f} s of wall time per simulation "
+          f"(the whole analysis divided by them)")
+    print(f"with loading and figures: {wall:.1f} s wall, {cpu:.1f} s CPU")
     print(f"wall time of one closeloop analysis: {wall:.1f} s (target <= 120 s): {'OK' if wall <= 120 else 'SLOW'}")
 
 

@@ -51,13 +51,7 @@ def _checksums(results) -> dict:
     return {str(f.relative_to(results)): hashlib.sha256(f.read_bytes()).hexdigest() for f in files}
 
 
-#: result keys that hold wall-clock times (removed by the helpers of issues 11 and 13 and by the
-#: lead in the analysis modules); until they are gone, two runs differ in exactly these
-TIMING_KEYS = "sim meta wall_time_s, closeloop.json timing/wall_s, ident time_s, study time_s"
-
-
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=f"wall-clock times still stored in results ({TIMING_KEYS})")
 def test_two_clean_runs_give_byte_identical_results(smoke_workdir, tmp_path_factory):
     first = _checksums(smoke_workdir / "results")
     second = _checksums(smoke_run(tmp_path_factory.mktemp("smoke_again")) / "results")
