@@ -32,6 +32,7 @@ NOISE = {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 11}
 NOISE_RMS = {"x_meas": 3e-8, "y_meas": 3e-8, "y_ss": 3e-8, "currents": 3e-4, "u_x": 0.0, "u_y": 0.0}
 SEED = int(os.environ.get("SSAMB_TEST_SEED", "20260101"))
 SLOW = bool(os.environ.get("SSAMB_SLOW"))
+pytestmark = pytest.mark.slow     # every test here analyses a simulated rig record (tens of seconds)
 #: measured failure, issue 13 open: see README "Status with the rig-like simulator"
 REPLAY_FLOOR = pytest.mark.xfail(strict=True, reason=(
     "the rig-like simulator's self-sensed y loop depends sensitively on its state (a replay of the rig's own model "
