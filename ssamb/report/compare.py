@@ -43,11 +43,21 @@ def mover(study: Mapping | None, key: str, unit: str = "", d: int = 3) -> str:
     return f"Moved most by study variant `{name}` ({_f(base, d, unit)} -> {_f(val, d, unit)})."
 
 
-def _which(study: Mapping | None, answer: str, what: str) -> str:
+def answer_text(study: Mapping, answer: str) -> str:
+    """What a study answer asks of a variant, with the criteria of ``study.json``."""
+    crit = study["criteria"]
+    return {"delevitation": "make the nonlinear model delevitate in the sweep while the LTI models do not",
+            "mu_peak_near_2hz": f"put the self-sensing μ peak within a factor {crit['mu_peak_factor']:g} of the "
+                                f"paper's {PAPER['mu_peak_hz'][0]:g} Hz",
+            "fit_y_near_paper": f"give a y fit within {crit['fit_y_points']:g} points of the paper's "
+                                f"{PAPER['fit_y_pct'][0]:g} %"}[answer]
+
+
+def _which(study: Mapping | None, answer: str) -> str:
     if not study:
         return ""
     names = study["answers"][answer]
-    return f" Variants that {what}: " + (", ".join(f"`{n}`" for n in names) if names else "none") + "."
+    return f" Variants that {answer_text(study, answer)}: " + (", ".join(f"`{n}`" for n in names) or "none") + "."
 
 
 def _fit_rows(S, P, study) -> list:
@@ -57,7 +67,7 @@ def _fit_rows(S, P, study) -> list:
     why_y = (f"With the paper's structure the assembled loop is {'stable' if stable else 'unstable'} "
              f"(spectral radius {_f(_get(P, 'spectral_radius'), 6)}) and y fits {_f(py, 4, ' %')}; ours (position-input "
              f"self-sensing, command-input amplifier) fits {_f(fy, 4, ' %')}. " + mover(study, "fit_y_pct", " %")
-             + _which(study, "fit_y_near_paper", "fit y within 10 points of the paper's"))
+             + _which(study, "fit_y_near_paper"))
     return [("closed-loop LTI fit, x (Fig. 4)", f"{PAPER['fit_x_pct'][0]} %", _f(fx, 4, " %"), _f(px, 4, " %"),
              "The x loop reads the eddy-current sensor in both structures. " + mover(study, "fit_x_pct", " %")),
             ("closed-loop LTI fit, y (Fig. 4)", f"{PAPER['fit_y_pct'][0]} %", _f(fy, 4, " %"), _f(py, 4, " %"), why_y)]
@@ -81,7 +91,7 @@ def _mu_rows(S, P, study) -> list:
              "The scale is 1/peak of μ for the measured weight. " + mover(study, "mu_scale_for_unity")),
             ("μ peak frequency (self-sensing)", f"~{PAPER['mu_peak_hz'][0]:g} Hz", _f(ss.get("peak_hz"), 3, " Hz"),
              _f(pss.get("peak_hz"), 3, " Hz"), f"Ours: {cause}. The paper's way: {pcause}. "
-             + mover(study, "mu_peak_hz", " Hz") + _which(study, "mu_peak_near_2hz", "put the peak within a factor 2 of 2 Hz"))]
+             + mover(study, "mu_peak_hz", " Hz") + _which(study, "mu_peak_near_2hz"))]
 
 
 def _event(o: Mapping | None) -> str:
@@ -108,7 +118,7 @@ def _sweep_rows(S, P, study) -> list:
              _event(outs.get("nonlinear")), _f(pdl.get("nonlinear"), 3, " s"),
              "The critical sweep amplitudes (section 6) say how far from delevitation each model is. "
              + mover(study, "critical_nonlinear_um", " µm")
-             + _which(study, "delevitation", "make the nonlinear model delevitate while the LTI models do not")),
+             + _which(study, "delevitation")),
             ("delevitation, nominal LTI model", "none", _event(outs.get("nominal LTI")), _f(pdl.get("nominal_lti"), 3, " s"),
              "An LTI model delevitates only above its exact critical amplitude. " + mover(study, "critical_lti_um", " µm")),
             ("delevitation, augmented LTI model", "none",

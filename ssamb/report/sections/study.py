@@ -3,7 +3,7 @@ assumption study (``snakemake --cores 2 study``)."""
 from __future__ import annotations
 
 from ..context import Context
-from ...paper import PAPER
+from ..compare import answer_text
 from ..elements import Image, Section, Table
 
 __all__ = ["paper_way", "sensitivity"]
@@ -44,22 +44,16 @@ def sensitivity(ctx: Context) -> Section:
         "values with the study's common overrides).")
     st = ctx.study
     if st is None:
-        return sec.add("Not in this report: `snakemake --cores 2 study` runs the study and writes "
-                       "`results/study/report.html`, which holds it.")
+        return sec.add("Not in this report: `snakemake --cores 2 study` runs the study; every report built "
+                       "after it holds it.")
     keys = ("fit_y_pct", "mu_peak_hz", "mu_scale_for_unity", "critical_nonlinear_um", "critical_lti_um",
             "delevitation_nonlinear_s")
     rows = [[n, v.get("stable"), *[v.get(k) for k in keys], "; ".join(f"{a}: {b}" for a, b in v["failed"].items())]
             for n, v in st["variants"].items()]
     ans = st["answers"]
-    crit = st["criteria"]
-    text = {"delevitation": "make the nonlinear model delevitate in the sweep while the LTI models do not",
-            "mu_peak_near_2hz": f"put the self-sensing μ peak within a factor {crit['mu_peak_factor']:g} of the "
-                                f"paper's {PAPER['mu_peak_hz'][0]:g} Hz",
-            "fit_y_near_paper": f"give a y fit within {crit['fit_y_points']:g} points of the paper's "
-                                f"{PAPER['fit_y_pct'][0]:g} %"}
     return sec.add(
         Table(["variant", "LTI loop stable", "fit y (%)", "μ peak (Hz)", "μ weight scale", "critical amplitude, "
                "nonlinear (µm)", "critical amplitude, LTI (µm)", "delevitation (s)", "failed stages"], rows),
         Image(ctx.path("study", "tornado.png")),
         "**Which assumptions reproduce the paper's headlines (computed over the variants):** " + " ".join(
-            f"Variants that {t}: {', '.join(f'`{n}`' for n in ans[k]) or 'none'}." for k, t in text.items()))
+            f"Variants that {answer_text(st, k)}: {', '.join(f'`{n}`' for n in ans[k]) or 'none'}." for k in ans))
