@@ -15,6 +15,7 @@ from typing import Mapping
 
 import numpy as np
 
+from ..channels import SUBSYSTEMS
 from ..generalized_plant import case_structure, uncertainty_loop
 from ..io import save_npz, write_json
 from ..model_io import load_model, load_weight
@@ -37,7 +38,11 @@ def run_mu(models: Mapping[str, str | Path], weights: Mapping[str, str | Path], 
     pid = pid_discrete(pid_params)
     m = {k: load_model(v) for k, v in models.items()}
     loop = uncertainty_loop(m["plant"], m["amplifier"], m["selfsensing"], pid, pid)
-    w = {k: load_weight(v) for k, v in weights.items()}
+    unknown = sorted(set(weights) - set(SUBSYSTEMS))
+    if unknown:
+        raise ValueError(f"weights: unknown subsystem '{unknown[0]}' (known: {', '.join(SUBSYSTEMS)})")
+    # in the subsystems' order whatever the caller's: the results are byte-reproducible
+    w = {k: load_weight(weights[k]) for k in SUBSYSTEMS if k in weights}
     sweep = mu_for_case(loop, w, case, log_grid(params["f_min_hz"], params["f_max_hz"], params["n_points"]),
                         refine=bool(params["refine"]))
     info = {"case": case, "blk": case_structure(case), **sweep.as_dict(),

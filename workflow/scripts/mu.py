@@ -9,6 +9,6 @@ with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = sys.stdout = log
     inp, out, wc, par = snakemake.input, snakemake.output, snakemake.wildcards, snakemake.params  # noqa: F821
     models = {"plant": inp.plant_model, "amplifier": inp.amplifier_model, "selfsensing": inp.selfsensing_model}
-    weights = {k[2:]: inp[k] for k in inp.keys() if k.startswith("w_")}
+    weights = {k[2:]: inp[k] for k in sorted(inp.keys()) if k.startswith("w_")}
     run_guarded("mu", out, run_mu, models, weights, wc.case, par.pid, par.mu, out.json, out.curve, out.fig,
                 tolerate=bool(wc.run))
