@@ -208,7 +208,7 @@ def _attribute(loop, weights, case: str, f_pk: float, peak: float, grid, modal) 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         dm = mu_frequency_response(_n11_modal(*_damped(lam, res, dom["index"], dt, DZETA), D, dt, wfun), grid, blk)
-        flat = {k: abs(complex(np.squeeze(weights[k](2j * np.pi * f_pk)))) for k in set(wrow)}
+        flat = {k: abs(complex(np.squeeze(weights[k](2j * np.pi * f_pk)))) for k in dict.fromkeys(wrow)}  # ordered: reproducible files
         fl = mu_frequency_response(n11_function(loop, {k: control.tf([v], [1]) for k, v in flat.items()}, case),
                                    grid, blk)
     strip = lambda m: {k: v for k, v in m.items() if k != "index"}  # noqa: E731
