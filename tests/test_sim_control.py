@@ -148,6 +148,21 @@ def test_calibration_is_accurate(cfg):
     assert 0.8 < cal["gain"] < 1.2          # eq. (2) is nearly right without calibration
 
 
+def test_calibration_errors_shift_and_scale_the_estimate(cfg):
+    """A rig's calibration error (``selfsensing.calibration_*_error``): the loop holds the
+    estimate y_ss = g e y_raw + c + dc at the reference 0, so an offset error dc moves the true
+    rotor to about -dc (the calibrated part tracks y_true); a gain error e scales the estimate
+    of a displaced rotor but leaves the centred rotor where it is."""
+    n = int(0.06 * cfg["controller"]["fs_hz"])
+    base = simulate(cfg, duration_s=0.06, arrays={"r_y": np.zeros(n)})
+    off = simulate(apply_overrides(cfg, {"selfsensing.calibration_offset_error_m": 2.0e-5}), duration_s=0.06,
+                   arrays={"r_y": np.zeros(n)})
+    shift = np.mean(off.data["y_meas"][n // 2:]) - np.mean(base.data["y_meas"][n // 2:])
+    assert shift == pytest.approx(-2.0e-5, abs=2e-6)
+    assert np.mean(off.data["y_ss"][n // 2:]) == pytest.approx(0.0, abs=2e-6)
+    assert off.meta["selfsensing_calibration"] == base.meta["selfsensing_calibration"]
+
+
 def test_meta_is_reproducible(cfg):
     """No wall-clock time in the meta: the same inputs give the same bytes."""
     a = simulate(cfg, duration_s=0.002, arrays={"r_y": np.zeros(166)}, settle_s=0.0)

@@ -424,6 +424,9 @@ def simulate(cfg: Mapping, experiment: str | None = None, options: SimOptions | 
         calib = calibrate_selfsensing(par, par.pack(**{k: v for k, v in ov.items() if k in ("XCOUP", "DEADTIME")}),
                                       positions, qtab, seeds)
         packed[P_SS_GAIN], packed[P_SS_OFF] = calib["gain"], calib["offset_m"]
+    # a rig's calibration is never exact: its error (1 and 0 by default) on top of the procedure's result
+    packed[P_SS_GAIN] *= float(cfg["selfsensing"]["calibration_gain_error"])
+    packed[P_SS_OFF] += float(cfg["selfsensing"]["calibration_offset_error_m"])
     dur = (drive.shape[1] - run["n_settle"]) / par.fs_hz
     progress = dur >= 1.0 if opts.progress is None else opts.progress
     out, fine, rip, (_, ss) = run_kernel(par, packed, qtab, exp["start"], eq, drive, noise, npi,

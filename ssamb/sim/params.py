@@ -72,7 +72,7 @@ __all__ += ["P_" + n for n in _names] + ["P_SIZE"]
 class AMBParams:
     """SI parameters of the nonlinear AMB model (see module docstring for the derivations)."""
 
-    turns: int                   # N, turns per electromagnet
+    turns: float                 # N, turns per electromagnet (effective turns: a calibration may give a non-integer)
     r_coil_ohm: float
     eddy_model: str              # "ladder", "shorted_turn" or "off"
     eddy_conductance_s: float    # g_e of the shorted-turn model (0 unless eddy_model is shorted_turn)
@@ -327,7 +327,7 @@ def amb_params(cfg: Mapping) -> AMBParams:
     l_pole = 2 * (rc - rp)
     ss = cfg["selfsensing"]
     return AMBParams(
-        turns=int(t1["coil_turns"] * geo["coils_per_magnet"]),
+        turns=float(t1["coil_turns"] * geo["coils_per_magnet"]),
         r_coil_ohm=t1["r_coil_ohm"],
         **_eddy(cfg, l_pole + pitch * (rc + rs) / 2 + pitch * (rr + rj) / 2 + (rj - rr), ap, t1["mu_r"]),
         v_supply_v=t1["v_supply_v"], f_pwm_hz=t1["f_pwm_hz"],
