@@ -1,34 +1,65 @@
-r"""A simulated rig: the nominal model plus undeclared effects and data-acquisition noise.
+r"""A simulated rig: a model that is not the nominal one, with undeclared effects, seen through a
+logging chain.
 
 ``python -m ssamb rig SCENARIO.yaml --out DATA.npz`` (:func:`run_scenario`) reads a scenario
-file (ARCHITECTURE.md, "Scenario file"), simulates the nonlinear AMB with the scenario's effects,
-adds logging noise and writes **only what a rig logs**: the measured-data format (plus the
-optional columns ``inj_x``, ``inj_y``) and a ``meta`` that describes the excitation (kind,
-parameters, seeds, injection point, axis) but never the effects or the noise.
+file (ARCHITECTURE.md, "Scenario file"), simulates the nonlinear AMB with the rig's own
+parameters and the scenario's effects, passes the logged channels through the logging chain
+(anti-alias filter, then logging noise) and writes **only what a rig logs**: the measured-data
+format (plus the optional columns ``inj_x``, ``inj_y``) and a ``meta`` that describes the
+excitation (kind, parameters, seeds, injection point, axis) and the logging chain, but never the
+effects, the overrides or the noise.
 
 Scenario file
 -------------
 .. code-block:: yaml
 
     config: config.yaml            # nominal parameters, relative to the scenario file
+    overrides:                     # the rig's own physics (dotted config keys): never in meta
+      table1.mass_kg: 4.02
+      magnetics.iron_conductivity_s_per_m: 1.8e+6
+      converters.current_adc_bits: 12
+      converters.current_noise_a: 1.0e-3
     experiment: {kind: multisine, point: position, axis: both, amplitude_m: 3.0e-5,
                  f_min_hz: 5, f_max_hz: 100, f_resolution_hz: 5, periods: 10, seed: 3}
     effects:                       # what the rig has and the model does not
       - {name: sensor_delay, axis: both, delay_s: 2.4e-5}
+    acquisition: {antialias_hz: 10000.0, order: 4}   # the logger's anti-alias filter: in meta
     noise: {position_m: 2.0e-8, current_a: 3.0e-4, seed: 11}
 
-Optional top-level keys: ``duration_s`` (required unless the excitation is a multisine or a
-sweep, which define their own length), ``start`` (``levitated``, the default, or ``rest``),
-``description`` and ``output: {dtype: float32}`` (store the logged signals in single
-precision, e.g. to keep a shipped data set small; ``t`` and ``fs_hz`` stay double; the
-default is ``float64``). The file is a compressed NPZ (``numpy.load`` reads it). ``experiment`` may also be the name of an experiment in the config. Effects
-follow the effect library (:mod:`ssamb.sim.effects`); an ``external_force`` file is relative
-to the scenario file.
+Optional top-level keys: ``overrides``, ``effects``, ``acquisition``, ``noise``,
+``duration_s`` (required unless the excitation is a multisine or a sweep, which define their
+own length), ``start`` (``levitated``, the default, or ``rest``), ``description`` and
+``output: {dtype: float32}`` (store the logged signals in single precision, e.g. to keep a
+shipped data set small; ``t`` and ``fs_hz`` stay double; the default is ``float64``). The file
+is a compressed NPZ (``numpy.load`` reads it). ``experiment`` may also be the name of an
+experiment in the config. Effects follow the effect library (:mod:`ssamb.sim.effects`); an
+``external_force`` file is relative to the scenario file.
 
-Noise model (a decision, see README "Close the loop with your rig data")
--------------------------------------------------------------------------
-``noise`` is **data-acquisition** noise: independent white Gaussian sequences added to the
-*logged* channels only,
+The rig's own parameters
+------------------------
+``overrides`` maps dotted config keys to values (:func:`ssamb.config.apply_overrides`): the
+rig's configuration is the ``config`` file's with them applied and validated like any config;
+the analysis, which reads the nominal config, never sees them (``meta.config_hash`` is the
+nominal config's). A mapping value replaces the whole section it names (``converters: {...}``
+must then hold every key of the section); to change one key, name it with its dotted key. A key
+the config lacks, or a value it rejects: ``<file>: key 'overrides.<key>': ...``.
+
+Noise and quantisation inside the loop are the config's converters (``converters.*``: analog
+noise, ADC bits, one sample of computation delay), set through ``overrides``; their noise is
+seeded from the excitation seed and ``converters.seed_offset``. The levels the default loop
+tolerates are measured by ``bench/converter_tolerance.py`` (README, "The simulated rig").
+
+The logging chain (a decision, see README "Close the loop with your rig data")
+------------------------------------------------------------------------------
+``acquisition`` is the logger's anti-alias filter (:mod:`ssamb.acquisition`): a causal
+Butterworth low-pass on the logged analog channels ``x_meas, y_meas, i_ypos, i_yneg, i_xpos,
+i_xneg``; the DSP's digital values (``y_ss, u_x, u_y, r_x, r_y, inj_x, inj_y``) pass
+unfiltered. A user knows the logging chain, so ``meta["acquisition"]`` carries the normalised
+specification; without ``acquisition`` (or with ``{}``) nothing is filtered and ``meta`` has no
+``acquisition`` key (a reader treats a missing key and ``null`` alike: no filter).
+
+``noise`` is **data-acquisition** noise (the logger's own ADC, after the filter): independent
+white Gaussian sequences added to the *logged* channels only,
 
 .. math::
 
@@ -38,9 +69,8 @@ Noise model (a decision, see README "Close the loop with your rig data")
 
 drawn in that order (a ``7 x n`` array) from ``numpy.random.default_rng(noise.seed)``. The
 controller outputs ``u_x``, ``u_y`` are digital values inside the DSP and are logged without
-noise. The loop itself runs noise-free: in-loop sensor noise (``simulate(noise=...)``) makes the
-self-sensing loop of this DCM design delevitate at milliampere current noise and colours the
-residual of a perfect model, so a rig built that way could not show "no effect found".
+noise. The loop itself runs with the converters of the rig's config (above), whatever the
+logging noise.
 
 Seeds: the excitation seed is the experiment's ``seed`` (default: the config's ``seed``); with
 ``axis: both`` the y axis uses ``seed + 7919`` (an independent realisation).
@@ -54,6 +84,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .acquisition import apply_acquisition, validate_acquisition
 from .errors import InputError, check_finite
 from .io import MEASURED_COLUMNS, versions
 
@@ -61,7 +92,8 @@ __all__ = ["ScenarioError", "load_scenario", "rig_data", "run_scenario", "NOISE_
 
 #: top-level keys of a scenario file: (required, optional)
 _TOP_REQUIRED = ("experiment",)
-_TOP_OPTIONAL = ("config", "effects", "noise", "duration_s", "start", "description", "output")
+_TOP_OPTIONAL = ("config", "overrides", "effects", "noise", "acquisition", "duration_s", "start", "description",
+                 "output")
 #: keys of the ``output`` mapping and their allowed values
 _OUTPUT_DTYPES = ("float64", "float32")
 #: keys of the ``noise`` mapping
@@ -103,20 +135,66 @@ def _validate_noise(src: str, noise: Any) -> dict | None:
     return out
 
 
+def _violated_override(message: str, keys: list[str]) -> str | None:
+    """The override a config violation concerns: the violated key itself, the section holding it,
+    or the first override the message names (a cross-key rule); None if none."""
+    violated = message.split("'")[1] if message.startswith("config key '") else ""
+    for k in keys:
+        if violated == k or violated.startswith(k + "."):
+            return k
+    return next((k for k in keys if k in message), None)
+
+
+def _rig_config(src: str, cfg: dict, overrides: Any) -> dict:
+    """The rig's own configuration: ``cfg`` with the scenario's ``overrides`` applied, validated.
+
+    Each key is a dotted config key (:func:`ssamb.config.apply_overrides`); a mapping value
+    replaces the whole section it names. A key the config lacks, a value the schema or a
+    physical rule rejects: one line naming ``overrides.<key>``.
+    """
+    from .config import ConfigError, apply_overrides, get, validate_config
+
+    if overrides is None:
+        return cfg
+    if not isinstance(overrides, Mapping):
+        raise ScenarioError(f"{src}: key 'overrides': must be a mapping of dotted config keys to values")
+    keys = [str(k) for k in overrides]
+    for k in keys:
+        try:
+            get(cfg, k)
+        except ConfigError:
+            raise ScenarioError(f"{src}: key 'overrides.{k}': not a key of the config "
+                                "(dotted, e.g. table1.mass_kg)") from None
+    rig = apply_overrides(cfg, {str(k): v for k, v in overrides.items()})
+    try:
+        validate_config(rig)
+    except ConfigError as exc:
+        msg = str(exc)
+        k = _violated_override(msg, keys)
+        if k is not None and msg.startswith(f"config key '{k}': "):
+            msg = msg[len(f"config key '{k}': "):]
+        where = "overrides" if k is None else f"overrides.{k}"
+        raise ScenarioError(f"{src}: key '{where}': {msg}") from None
+    return rig
+
+
 def load_scenario(path: str | Path) -> dict:
     """Read and validate a scenario file.
 
-    Returns a dict with ``cfg`` (the validated nominal config), ``excitation`` (a spec without
-    its seed), ``seed`` (the excitation seed), ``duration_s``, ``start``, ``effects`` (validated,
-    flat), ``noise`` (or None) and ``base_dir`` (the scenario's directory).
+    Returns a dict with ``cfg`` (the rig's own config: the nominal one with the scenario's
+    ``overrides``, validated), ``nominal_config_hash`` (of the config without them),
+    ``excitation`` (a spec without its seed), ``seed`` (the excitation seed), ``duration_s``,
+    ``start``, ``effects`` (validated, flat), ``noise`` (or None), ``acquisition`` (normalised,
+    ``{}`` for none) and ``base_dir`` (the scenario's directory).
 
     Raises
     ------
     ScenarioError
-        Unknown or missing keys, an unknown effect or a missing effect parameter, bad noise;
-        the message names the file and the key.
+        Unknown or missing keys, an unknown effect or a missing effect parameter, an override
+        of a key the config lacks or to a value it rejects, bad noise or acquisition; the
+        message names the file and the key.
     """
-    from .config import ConfigError, load_config, read_yaml_mapping
+    from .config import ConfigError, config_hash, load_config, read_yaml_mapping
     from .sim.effects import EffectError, validate_effect
 
     path = Path(path)
@@ -139,9 +217,10 @@ def load_scenario(path: str | Path) -> dict:
         if not cfg_path.is_absolute():
             cfg_path = base / cfg_path
     try:
-        cfg = load_config(cfg_path)
+        nominal = load_config(cfg_path)
     except ConfigError as exc:
         raise ScenarioError(f"{src}: key 'config': {exc}") from None
+    cfg = _rig_config(src, nominal, sc.get("overrides"))
 
     exp = sc["experiment"]
     duration = sc.get("duration_s")
@@ -203,6 +282,8 @@ def load_scenario(path: str | Path) -> dict:
             flat["file"] = str(f)
         effects.append(flat)
     noise = _validate_noise(src, sc.get("noise"))
+    acquisition = validate_acquisition(sc.get("acquisition"), src, float(cfg["controller"]["fs_hz"]),
+                                       error=ScenarioError)
     output = sc.get("output") or {}
     if not isinstance(output, Mapping) or any(k != "dtype" for k in output):
         raise ScenarioError(f"{src}: key 'output' must be a mapping with the only key 'dtype'")
@@ -210,7 +291,8 @@ def load_scenario(path: str | Path) -> dict:
     if dtype not in _OUTPUT_DTYPES:
         raise ScenarioError(f"{src}: key 'output.dtype' must be one of {', '.join(_OUTPUT_DTYPES)} (got {dtype!r})")
     return {"cfg": cfg, "dtype": dtype, "excitation": spec, "seed": seed, "duration_s": duration, "start": start,
-            "effects": effects, "noise": noise, "base_dir": str(base),
+            "effects": effects, "noise": noise, "acquisition": acquisition, "base_dir": str(base),
+            "nominal_config_hash": config_hash(nominal),
             "description": sc.get("description")}
 
 
@@ -232,10 +314,12 @@ def add_logging_noise(data: Mapping[str, np.ndarray], noise: Mapping | None) -> 
 def rig_data(scenario: Mapping, progress: bool = False) -> tuple[dict, dict]:
     """Simulate a validated scenario (:func:`load_scenario`); return ``(arrays, meta)`` as logged.
 
-    ``arrays`` holds exactly the measured-data columns, ``fs_hz``, ``inj_x`` and ``inj_y``;
-    ``meta`` describes the excitation and the start (never the effects nor the noise).
+    ``arrays`` holds exactly the measured-data columns, ``fs_hz``, ``inj_x`` and ``inj_y``: the
+    simulated channels through the logging chain (:func:`ssamb.acquisition.apply_acquisition`),
+    then the logging noise (:func:`add_logging_noise`). ``meta`` describes the excitation, the
+    start and the logging chain (``acquisition``, only when the scenario has one), never the
+    effects, the overrides nor the noise; its ``config_hash`` is the nominal config's.
     """
-    from .config import config_hash
     from .sim import simulate
 
     cfg = scenario["cfg"]
@@ -243,8 +327,11 @@ def rig_data(scenario: Mapping, progress: bool = False) -> tuple[dict, dict]:
                    start=scenario["start"], effects=scenario["effects"], seed=scenario["seed"],
                    progress=progress, effects_base_dir=scenario["base_dir"])
     keep = list(MEASURED_COLUMNS) + ["inj_x", "inj_y"]
-    logged = add_logging_noise({k: res.data[k] for k in keep}, scenario["noise"])
-    logged["fs_hz"] = np.asarray(float(res.data["fs_hz"]))
+    fs_hz = float(res.data["fs_hz"])
+    acquisition = scenario.get("acquisition") or {}
+    filtered = apply_acquisition({k: res.data[k] for k in keep}, acquisition, fs_hz)
+    logged = add_logging_noise(filtered, scenario["noise"])
+    logged["fs_hz"] = np.asarray(fs_hz)
     exc = dict(res.meta["excitation"])
     exc["seed"] = scenario["seed"]          # base seed (x; y uses seed + 7919 when axis is both)
     meta = {
@@ -255,9 +342,11 @@ def rig_data(scenario: Mapping, progress: bool = False) -> tuple[dict, dict]:
         "duration_s": float(len(logged["t"]) / float(logged["fs_hz"])),
         "fs_hz": float(logged["fs_hz"]),
         "settle_s": float(res.meta["settle_s"]),
-        "config_hash": config_hash(cfg),
+        "config_hash": scenario["nominal_config_hash"],
         "versions": versions(),
     }
+    if acquisition:
+        meta["acquisition"] = dict(acquisition)
     if scenario.get("description"):
         meta["description"] = str(scenario["description"])
     return logged, meta
