@@ -100,6 +100,10 @@ class SimOptions:
         Directory of relative ``external_force`` files.
     settle_s : float, optional
         Pre-roll before recording (default ``simulation.settle_s``; 0 for a rest start).
+    calibration_noise : bool
+        False calibrates DCM self-sensing with noise-free converter samples (quantisation
+        stays): a calibration without a random error of its own, for a replay whose
+        calibration error is a parameter (``selfsensing.calibration_*_error``).
     """
 
     duration_s: float | None = None
@@ -117,6 +121,7 @@ class SimOptions:
     arrays: Mapping | None = None
     effects_base_dir: str | Path | None = None
     settle_s: float | None = None
+    calibration_noise: bool = True
 
 
 # ------------------------------------------------------------------------------------------
@@ -420,7 +425,8 @@ def simulate(cfg: Mapping, experiment: str | None = None, options: SimOptions | 
     calib = None
     if cfg["selfsensing"]["calibrate"]:
         positions = cfg["selfsensing"]["calibration_positions_m"]
-        seeds = [_seed_sequence(cfg, seed, exp["excitation"], 1000 + i) for i in range(len(positions))]
+        seeds = ([_seed_sequence(cfg, seed, exp["excitation"], 1000 + i) for i in range(len(positions))]
+                 if opts.calibration_noise else None)
         calib = calibrate_selfsensing(par, par.pack(**{k: v for k, v in ov.items() if k in ("XCOUP", "DEADTIME")}),
                                       positions, qtab, seeds)
         packed[P_SS_GAIN], packed[P_SS_OFF] = calib["gain"], calib["offset_m"]
