@@ -619,6 +619,7 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
     m1 = np.zeros(4)
     m2 = np.zeros(4)
     qm = np.zeros(30)
+    ring_i, ring_l, win = ss_rings[0], ss_rings[1], ss_rings[2]   # views made once (no refcounts per sample)
     for k in range(k0, k1):
         t = k * dt
         _magnet_mmfs(st, p, z, qtab, fm, dfm, qm)
@@ -627,7 +628,7 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
             i_true = _coil_i(st[S_BLK + j], st[S_VOLT + j], fm[j], fem[j], ge, vs, n_turns, inv_den)
             isamp[j] = adc(i_true + noise[2 + j, k], p[P_I_Q], p[P_I_INVQ], p[P_I_CMAX])
         x_sens = adc(p[P_GAIN_X] * st[S_XS] + noise[0, k], p[P_X_Q], p[P_X_INVQ], p[P_X_CMAX])
-        dcm_update(ss, p, ss_rings[0], ss_rings[1], ss_rings[2], isamp[0], tb)
+        dcm_update(ss, p, ring_i, ring_l, win, isamp[0], tb)
         x_ctl, y_ctl = _control(st, p, ss, rings, k, fs, x_sens, drive, noise[1, k])
         # ---------------- record ----------------
         out[O_T, k] = t
