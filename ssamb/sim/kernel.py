@@ -404,7 +404,7 @@ def _pi_update(st, p, j, i_meas):
     return dty
 
 
-@nb.njit(**_HOT)
+@nb.njit(inline="always", **_HOT)
 def _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip, rip_n, track, n_den, r_den, ge, inv_den):
     r"""Integrate magnet ``j`` (flux and amplifier ``j``) from ``t_a`` to ``t_b``.
 
@@ -511,6 +511,25 @@ def _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip, rip_n, trac
         st[S_RIPMAX] = rmax
         st[S_RIPMIN] = rmin
     return rip_n, s1, s2, sv, scmd
+
+
+@nb.njit(**_HOT)
+def _advance_magnets(st, p, ss, t_a, t_b, fm, dfm, fem, lad, npi, rip, rip_n, track, n_den, r_den, ge, inv_den,
+                     inv_h, m1, m2, vbar):
+    """:func:`_advance_magnet` for the four magnets over one sub-step ``[t_a, t_b]``.
+
+    Stores each magnet's flux integrals in ``m1``, ``m2`` and its mean coil voltage in ``vbar``
+    (``inv_h`` = 1/h), and adds the ypos amplifier's commanded volt-seconds to the DCM state
+    ``ss``. One call per sub-step with :func:`_advance_magnet` inlined in its loop: a call per
+    magnet passed its dozen arrays four times (a fifth of the kernel time). Returns ``rip_n``.
+    """
+    for j in range(4):
+        rip_n, m1[j], m2[j], sv, scmd = _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip,
+                                                        rip_n, track, n_den, r_den, ge, inv_den)
+        vbar[j] = sv * inv_h
+        if j == 0:
+            ss[D_LAM] += scmd
+    return rip_n
 
 
 @nb.njit(**_HOT)
@@ -656,12 +675,8 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
         for s in range(nsub):
             t_a = (k + s / nsub) * dt
             t_b = (k + (s + 1.0) / nsub) * dt
-            for j in range(4):
-                rip_n, m1[j], m2[j], sv, scmd = _advance_magnet(st, p, j, t_a, t_b, fm, dfm, fem, lad, npi, rip,
-                                                                rip_n, track, n_den, r_den, ge, inv_den)
-                vbar[j] = sv * inv_h
-                if j == 0:
-                    ss[D_LAM] += scmd
+            rip_n = _advance_magnets(st, p, ss, t_a, t_b, fm, dfm, fem, lad, npi, rip, rip_n, track, n_den, r_den,
+                                     ge, inv_den, inv_h, m1, m2, vbar)
             fmx, fmy = _mean_forces(p, m1, m2, h, qm)
             _rotor_step(st, p, h, fmx, fmy, drive[4, k], drive[5, k])
             # x probe: first-order low-pass of the true position
