@@ -57,7 +57,7 @@ from .params import (MAX_LADDER, P_CC, P_CDELAY, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, 
 # numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
 # params.py (the P_* layout) or a compiled helper imported from another module, change this
 # file too (or clear __pycache__), or stale machine code with old constants is reused.
-# cache generation: 3 (P_* layout of the converters / ladder / network)
+# cache generation: 5 (inlined helpers in dsp.py, magnetics.py)
 
 # helpers called every sample: no numba runtime (see magnetics.NO_NRT), no allocation
 _HOT = dict(cache=True, error_model="numpy", fastmath=True, **NO_NRT)
