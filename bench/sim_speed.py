@@ -9,26 +9,84 @@ compilation excluded) and the ripple-peak error against a run at 10x finer resol
 The timed call is the whole ``simulate()`` (excitation, equilibrium, DCM calibration, kernel,
 output assembly). The real-time factor is wall-clock; on a shared machine it depends on the
 load, so the CPU time of the process (``time.process_time``) and the load average are printed
-with it. Each figure is the best of ``--repeat`` runs.
+with it. Each figure is the best of ``--repeat`` runs. A per-stage breakdown of the CPU time
+follows (the best run of each stage over further ``--repeat`` runs, as fractions of their sum).
 """
 from __future__ import annotations
 
 import argparse
 import os
 import time
+from contextlib import contextmanager
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
 from ssamb.config import apply_overrides, load_config  # noqa: E402
-from ssamb.sim import simulate  # noqa: E402
+from ssamb.sim import api, simulate  # noqa: E402
+
+#: stages of simulate() timed by the breakdown: the functions of ssamb.sim.api that run them
+#: (a stage called inside another, e.g. the kernel runs of the calibration, counts to the outer one)
+STAGES = {"excitation": "excitation_arrays", "drive": "_drive", "noise": "converter_noise",
+          "equilibrium": "equilibrium", "calibration": "calibrate_selfsensing", "kernel": "run_kernel",
+          "assembly": "_assemble"}
+
+
+@contextmanager
+def stage_timers(totals: dict):
+    """Wrap the stage functions of :mod:`ssamb.sim.api` so that each adds its exclusive CPU time
+    (less the stages nested in it) to ``totals[stage]``; restored on exit."""
+    saved = {name: getattr(api, fn) for name, fn in STAGES.items()}
+    stack = []                      # CPU time of the nested stages, one entry per open stage
+
+    def timed(stage, fn):
+        def wrapper(*args, **kwargs):
+            if stack and stack[-1][0] != "drive":     # nested (not the excitation): the outer stage's
+                return fn(*args, **kwargs)
+            stack.append([stage, 0.0])
+            c0 = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                dt = time.process_time() - c0
+                inner = stack.pop()[1]
+                totals[stage] = totals.get(stage, 0.0) + dt - inner
+                if stack:
+                    stack[-1][1] += dt
+        return wrapper
+
+    for name, fn in STAGES.items():
+        setattr(api, fn, timed(name, saved[name]))
+    try:
+        yield totals
+    finally:
+        for name, fn in STAGES.items():
+            setattr(api, fn, saved[name])
+
+
+def breakdown(cfg: dict, seconds: float, repeat: int) -> None:
+    """Print the CPU time of every stage of simulate() (best of ``repeat``) and its share."""
+    best: dict = {}
+    for _ in range(repeat):
+        totals: dict = {}
+        c0 = time.process_time()
+        with stage_timers(totals):
+            simulate(cfg, "multisine", duration_s=seconds, progress=False, settle_s=0.0)
+        totals["other"] = time.process_time() - c0 - sum(totals.values())
+        for k, v in totals.items():
+            best[k] = min(best.get(k, np.inf), v)
+    total = sum(best.values())
+    print(f"per-stage CPU time (best of {repeat} per stage; sum {total:.3f} s):")
+    for k in (*STAGES, "other"):
+        print(f"  {k:12s} {1e3 * best.get(k, 0.0):8.1f} ms  {100 * best.get(k, 0.0) / total:5.1f} %")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--seconds", type=float, default=2.0, help="simulated duration of the timed run")
     ap.add_argument("--repeat", type=int, default=5, help="timed runs (the best is reported)")
+    ap.add_argument("--no-breakdown", action="store_true", help="skip the per-stage breakdown")
     args = ap.parse_args()
     cfg = load_config()
     mag, conv = cfg["magnetics"], cfg["converters"]
@@ -56,6 +114,8 @@ def main() -> None:
     print(f"CPU time  (best of {args.repeat}, incl. calibration): {best_cpu:.3f} s = {1e6 * best_cpu / n:.3f} us/sample"
           f" (CPU real-time factor {args.seconds / best_cpu:.1f})")
     print(f"real-time factor: {args.seconds / best_wall:.1f}")
+    if not args.no_breakdown:
+        breakdown(cfg, args.seconds, args.repeat)
     # ripple peak against 10x finer resolution: rotor clamped, amplifiers at the levitation
     # currents, ideal converters (a quantised PI sample flips a code on a 1e-9 A difference), so
     # that both runs switch alike and only the integration differs

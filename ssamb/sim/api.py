@@ -25,6 +25,7 @@ from ..config import ConfigError, config_hash
 from .dsp import D_REJ, trend_basis
 from .effects import apply_effects
 from .kernel import N_OUT, OUT_NAMES, run_chunk
+from .normal import standard_normal
 from .params import P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_PID_ON, P_SS_GAIN, P_SS_OFF, AMBParams, amb_params
 from .statics import equilibrium, initial_state, network_tables
 
@@ -133,7 +134,8 @@ def converter_noise(par: AMBParams, n: int, seed_seq: np.random.SeedSequence | i
     y probe, the four coil currents) and ``npi`` (4 x PWM periods, the amplifiers' PI current
     samples), white Gaussian with the rms of ``converters.position_noise_m`` and
     ``current_noise_a`` (or of ``noise`` when given, the legacy ``simulate(noise=...)``), drawn in
-    that order from ``numpy.random.default_rng(seed_seq)``.
+    that order from ``numpy.random.default_rng(seed_seq)`` (by :func:`ssamb.sim.normal.standard_normal`:
+    NumPy's numbers, compiled).
     """
     sp, si = par.position_noise_m, par.current_noise_a
     if noise:
@@ -143,10 +145,12 @@ def converter_noise(par: AMBParams, n: int, seed_seq: np.random.SeedSequence | i
     if sp == 0.0 and si == 0.0:
         return np.zeros((6, n)), np.zeros((4, n_per))
     rng = np.random.default_rng(seed_seq)
-    out = rng.standard_normal((6, n))
+    out = standard_normal(rng, (6, n))
     out[:2] *= sp
     out[2:] *= si
-    return out, si * rng.standard_normal((4, n_per))
+    npi = standard_normal(rng, (4, n_per))
+    npi *= si
+    return out, npi
 
 
 def _seed_sequence(cfg: Mapping, seed: int, exc: Mapping, key: int = 0) -> np.random.SeedSequence:

@@ -126,7 +126,7 @@ def pid_step(st, p, base, e):
     return u
 
 
-@nb.njit(**_HOT)
+@nb.njit(inline="always", **_HOT)
 def _fit_lsq(p, win, w, tb):
     """Least-squares ``1/L`` over the window (trend projected out); 0.0 if degenerate or gated.
 
@@ -164,7 +164,7 @@ def _fit_lsq(p, win, w, tb):
     return a, False
 
 
-@nb.njit(**_HOT)
+@nb.njit(inline="always", **_HOT)
 def _fit_peak(p, win, w):
     """Peak estimate ``1/L`` from the largest and smallest sample of the window (0.0 if degenerate)."""
     kmax = 0
@@ -188,7 +188,8 @@ def _fit_peak(p, win, w):
 @nb.njit(**_HOT)
 def dcm_update(s, p, ring_i, ring_l, win, i_samp, tb):
     r"""Push one ypos current sample (and the volt-seconds since the last one) and update the
-    estimate (see the module docstring). ``win`` is a work array of ``2 SS_RING`` entries."""
+    estimate (see the module docstring). ``win`` is a work array of ``2 SS_RING`` entries.
+    The fits (:func:`_fit_lsq`, :func:`_fit_peak`) are inlined here (no arrays passed per sample)."""
     w = int(p[P_SS_W])
     nidx = int(s[D_N])
     slot = nidx % SS_RING

@@ -66,25 +66,43 @@ def _coupled_fluxes(p, q, cur, gs):
     return phi
 
 
+class _StaticCircuit:
+    """The static magnetic circuit at one rotor position ``(x_m, y_m)``: the hysteresis-free
+    parameters, the gap sums and the interpolated network coupling, evaluated once for the many
+    currents of a root search (:func:`equilibrium`)."""
+
+    def __init__(self, packed: np.ndarray, qtab: np.ndarray, x_m: float = 0.0, y_m: float = 0.0):
+        self.packed = packed
+        self.p = packed.copy()
+        self.p[P_HYST] = 0.0
+        self.gs = np.array([gap_sum(d, self.p) for d in (y_m, -y_m, x_m, -x_m)])
+        self.qm = _coupling(packed, qtab, x_m, y_m)
+        self.q = np.ascontiguousarray(self.qm[0])
+
+    def fluxes(self, currents_a) -> np.ndarray:
+        """:func:`static_fluxes` at this position."""
+        cur = np.maximum(np.asarray(currents_a, float), 0.0)
+        return _coupled_fluxes(self.p, self.q, cur, self.gs)
+
+    def forces(self, phi) -> tuple[float, float]:
+        """:func:`static_forces` at this position."""
+        f = [force_from_flux(v, self.packed) for v in phi]
+        phi = np.asarray(phi, float)
+        fx = f[2] - f[3] - 0.5 * phi @ self.qm[1] @ phi
+        fy = f[0] - f[1] - 0.5 * phi @ self.qm[2] @ phi
+        return float(fx), float(fy)
+
+
 def static_fluxes(packed: np.ndarray, qtab: np.ndarray, currents_a, x_m: float = 0.0,
                   y_m: float = 0.0) -> np.ndarray:
     r"""DC fluxes per turn (Wb) of the four magnets for coil currents ``currents_a`` (hysteresis
     off): :math:`N i = \mathcal F_m(\Phi) + Q\Phi`, Newton's method from the uncoupled fluxes."""
-    p = packed.copy()
-    p[P_HYST] = 0.0
-    gs = np.array([gap_sum(d, p) for d in (y_m, -y_m, x_m, -x_m)])
-    cur = np.maximum(np.asarray(currents_a, float), 0.0)
-    return _coupled_fluxes(p, np.ascontiguousarray(_coupling(p, qtab, x_m, y_m)[0]), cur, gs)
+    return _StaticCircuit(packed, qtab, x_m, y_m).fluxes(currents_a)
 
 
 def static_forces(packed: np.ndarray, qtab: np.ndarray, phi, x_m: float = 0.0, y_m: float = 0.0):
     """Magnetic force (Fx, Fy) in N for the fluxes ``phi`` (series pull plus network coupling)."""
-    f = [force_from_flux(v, packed) for v in phi]
-    qm = _coupling(packed, qtab, x_m, y_m)
-    phi = np.asarray(phi, float)
-    fx = f[2] - f[3] - 0.5 * phi @ qm[1] @ phi
-    fy = f[0] - f[1] - 0.5 * phi @ qm[2] @ phi
-    return float(fx), float(fy)
+    return _StaticCircuit(packed, qtab, x_m, y_m).forces(phi)
 
 
 def equilibrium(par: AMBParams, packed: np.ndarray, qtab: np.ndarray | None = None, f_x_n: float = 0.0,
@@ -103,10 +121,10 @@ def equilibrium(par: AMBParams, packed: np.ndarray, qtab: np.ndarray | None = No
     ty = par.weight_n - f_y_n
     tx = -f_x_n
     lim = min(par.u_max_a, i0) * 0.999
+    circuit = _StaticCircuit(packed, qtab, x_m, y_m)
 
     def forces(ux, uy):
-        cur = np.array([i0 + uy, i0 - uy, i0 + ux, i0 - ux])
-        return static_forces(packed, qtab, static_fluxes(packed, qtab, cur, x_m, y_m), x_m, y_m)
+        return circuit.forces(circuit.fluxes(np.array([i0 + uy, i0 - uy, i0 + ux, i0 - ux])))
 
     ux = uy = 0.0
     try:
@@ -122,7 +140,7 @@ def equilibrium(par: AMBParams, packed: np.ndarray, qtab: np.ndarray | None = No
             f"no levitated equilibrium: the control current would exceed u_max_a = {par.u_max_a} A "
             f"(load {tx:.3g} N in x, {ty:.3g} N in y)") from None
     cur = np.array([i0 + uy, i0 - uy, i0 + ux, i0 - ux])
-    phis = static_fluxes(packed, qtab, cur, x_m, y_m)
+    phis = circuit.fluxes(cur)
     duty = 0.5 + par.r_coil_ohm * cur / (2 * par.v_supply_v)
     return {"u_x": ux, "u_y": uy, "currents_a": cur, "phi_wb": phis, "duty": duty, "x_m": x_m, "y_m": y_m}
 
@@ -148,7 +166,8 @@ def linear_stiffness(par: AMBParams, axis: str = "y", packed: np.ndarray | None 
     di, dx = 1e-3, 1e-7
 
     def force(c, x, y):
-        return static_forces(packed, qtab, static_fluxes(packed, qtab, c, x, y), x, y)[ax]
+        circuit = _StaticCircuit(packed, qtab, x, y)
+        return circuit.forces(circuit.fluxes(c))[ax]
 
     ki = (force(cur + di * sign, 0.0, 0.0) - force(cur - di * sign, 0.0, 0.0)) / (2 * di)
     d = (dx, 0.0) if axis == "x" else (0.0, dx)
