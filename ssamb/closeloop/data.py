@@ -79,6 +79,9 @@ class Record:
         ``levitated`` or ``rest``.
     settle_s : float or None
         Pre-roll of the data's simulation, if ``meta`` records it.
+    acquisition : dict
+        The logging chain (``meta.acquisition``: the logger's anti-alias filter, validated;
+        empty when none), which the replay applies to the model's channels too.
     meta : dict
     """
 
@@ -92,6 +95,7 @@ class Record:
     lines_hz: np.ndarray | None
     start: str
     settle_s: float | None
+    acquisition: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
 
     @property
@@ -186,10 +190,13 @@ def record_from_arrays(arrays: Mapping, meta: Mapping, fs_model_hz: float, sourc
             if exc.get("lines_hz"):
                 lines = np.asarray(exc["lines_hz"], float)
     settle = meta.get("settle_s")
+    from ..acquisition import validate_acquisition
+
+    acq = validate_acquisition(meta.get("acquisition"), source, fs, key="meta.acquisition", error=DataError)
     return Record(fs_hz=fs, channels=ch, inputs=inputs, excitation=exc, excited_axes=tuple(excited),
                   signal=signal, n_period=n_period, lines_hz=lines,
                   start=str(meta.get("start", "levitated")),
-                  settle_s=None if settle is None else float(settle), meta=dict(meta))
+                  settle_s=None if settle is None else float(settle), acquisition=acq, meta=dict(meta))
 
 
 @dataclass(frozen=True)

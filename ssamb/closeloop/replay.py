@@ -1,10 +1,20 @@
-"""Replay: drive the nonlinear model with the excitation recorded in the data.
+"""Replay: drive the model with the excitation recorded in the data -- the engine's one contact
+with the device.
 
-The model is :func:`ssamb.sim.simulate` with explicit ``arrays`` (the recorded references and
-injections), the start state the data's ``meta`` names (default: levitated, from the static
-equilibrium, after the config's pre-roll) and any effects of the library. The simulator is
-deterministic, so a replay of data made by the nominal model reproduces it exactly apart from
-the logging noise.
+The statistics of close the loop (features, estimation, signatures, search) see the model only
+through :meth:`Replayer.mean`: *given parameter overrides (dotted config keys), library effects
+and a set of seeds, return the logged channels*. Another device model plugs in by providing
+the same method.
+
+The AMB model is :func:`ssamb.sim.simulate` with explicit ``arrays`` (the recorded references
+and injections), the start state the data's ``meta`` names (default: levitated, from the static
+equilibrium, after the config's pre-roll), the library effects, and the data's logging chain
+(``meta.acquisition``) applied to the model's channels. The DSP's converters act in the loop as
+configured, seeded by ``seed``: a replay is one realisation of the loop's noise, and
+:meth:`Replayer.mean` averages several (the model's *expected* response, with its noise reduced
+by the number of seeds). The self-sensing calibration of a replay is noise-free
+(``calibration_noise=False``): a rig's calibration error is a parameter
+(``selfsensing.calibration_*_error``), not a random draw of the model's.
 """
 from __future__ import annotations
 
@@ -22,7 +32,7 @@ __all__ = ["Replayer"]
 
 @dataclass
 class Replayer:
-    """Simulate the model on (a prefix of) a record, with effects; results are memoised.
+    """Simulate the model on (a prefix of) a record; results are memoised.
 
     Attributes
     ----------
@@ -30,7 +40,7 @@ class Replayer:
         Validated configuration of the nominal model.
     record : Record
     n_sims, wall_s : int, float
-        Simulations run and their wall time (for the report).
+        Simulations run and their wall time (for the log).
     cache_size : int
         Results kept (least recently used dropped first).
     """
@@ -39,37 +49,59 @@ class Replayer:
     record: Record
     n_sims: int = 0
     wall_s: float = 0.0
-    cache_size: int = 8
+    cache_size: int = 64
     _cache: dict = field(default_factory=dict, repr=False)
 
-    def run(self, effects: Iterable[Mapping] = (), n: int | None = None) -> dict:
+    def run(self, effects: Iterable[Mapping] = (), n: int | None = None, overrides: Mapping | None = None,
+            seed: int | None = None) -> dict:
         """Model channels (:data:`CHANNELS`) for the first ``n`` samples (default: all).
 
         Parameters
         ----------
         effects : iterable of mappings
-            Library effects added to the nominal model (``{name, **params}``).
+            Library effects added to the model (``{name, **params}``).
         n : int, optional
-            Simulate only the first ``n`` samples (the fitting part needs no more).
+            Simulate only the first ``n`` samples.
+        overrides : mapping, optional
+            Dotted config keys and values (calibrated parameters).
+        seed : int, optional
+            Seed of the converter noise (default: the config's).
         """
+        from ..acquisition import apply_acquisition
+        from ..config import apply_overrides
         from ..sim import simulate
 
         effects = [dict(e) for e in effects]
         n = self.record.n if n is None else int(n)
-        key = (json.dumps(effects, sort_keys=True, default=float), n)
+        ov = {k: float(v) for k, v in sorted((overrides or {}).items())}
+        key = json.dumps([effects, n, ov, seed], sort_keys=True, default=float)
         if key in self._cache:
             out = self._cache.pop(key)          # most recently used last
             self._cache[key] = out
             return out
+        cfg = apply_overrides(self.cfg, ov) if ov else self.cfg
         arrays = {k: v[:n] for k, v in self.record.inputs.items()}
         t0 = time.perf_counter()
-        res = simulate(self.cfg, arrays=arrays, effects=effects, start=self.record.start,
-                       settle_s=self.record.settle_s, progress=False)
+        res = simulate(cfg, arrays=arrays, effects=effects, start=self.record.start,
+                       settle_s=self.record.settle_s, progress=False, seed=seed, calibration_noise=False)
         self.wall_s += time.perf_counter() - t0
         self.n_sims += 1
-        out = {c: np.asarray(res.data[c], float) for c in CHANNELS}
+        logged = apply_acquisition({c: res.data[c] for c in CHANNELS}, self.record.acquisition, self.record.fs_hz)
+        out = {c: np.asarray(logged[c], float) for c in CHANNELS}
         out["delevitated"] = res.meta.get("delevitation_s") is not None
         self._cache[key] = out
         while len(self._cache) > self.cache_size:
             self._cache.pop(next(iter(self._cache)))
+        return out
+
+    def mean(self, effects: Iterable[Mapping] = (), n: int | None = None, overrides: Mapping | None = None,
+             seeds: Iterable[int] = (None,)) -> dict:
+        """The channels averaged over replays with ``seeds`` (``delevitated`` if any replay did).
+
+        Averaging keeps the response the excitation determines and divides the variance of the
+        model's own noise by the number of seeds.
+        """
+        runs = [self.run(effects, n, overrides, s) for s in seeds]
+        out = {c: np.mean([r[c] for r in runs], axis=0) if len(runs) > 1 else runs[0][c] for c in CHANNELS}
+        out["delevitated"] = any(r["delevitated"] for r in runs)
         return out

@@ -1,0 +1,200 @@
+r"""Nominal-parameter calibration: the model's own parameters, estimated from the rig's data.
+
+A rig never matches its nominal model: the rotor is heavier than drawn, the airgap ground a few
+micrometres wide, the supply a volt low. These parameters are the first thing to estimate, and
+effects come second (:mod:`ssamb.closeloop.search`). Each calibratable parameter is a dotted
+config key with a prior tolerance (config ``closeloop.calibration``):
+
+.. math:: \theta_i = \frac{p_i - p_{i,0}}{p_{i,0}} \sim N(0, \sigma_i^2)
+
+(relative; a key whose nominal value is 0 -- a calibration offset -- is absolute,
+:math:`\theta_i = p_i`). The estimate is the maximum a posteriori point of the feature residual
+and the prior (:func:`ssamb.closeloop.estimate.map_fit`), with the posterior covariance from
+the Jacobian at the optimum.
+
+Identifiability (:func:`identifiability`) is read off the same Jacobian. With the data
+information :math:`\mathcal I` (p x p) and the prior precision :math:`\Lambda`, the posterior
+covariance is :math:`(\mathcal I + \Lambda)^{-1}`. A parameter is **identified** when the data
+shrink its tolerance at least ``1/identifiable_ratio`` times (posterior standard deviation
+:math:`\le` ``identifiable_ratio`` :math:`\sigma_i`). Otherwise the reason is computed:
+
+* *no sensitivity* when even alone (all others known) the data would fix it no better than
+  that, :math:`\mathcal I_{ii}^{-1/2} > r\sigma_i`;
+* *confounded* when alone it would be identified but jointly it is not: the parameters it is
+  most correlated with in the posterior are named (e.g. rotor mass and coil turns on an axis
+  whose dynamics depend only on :math:`k_i/m`).
+
+The scaled sensitivity matrix :math:`S = \mathcal I^{1/2}\,\mathrm{diag}(\sigma)` (information
+per tolerance) gives the rank (singular values above 3: combinations known to a third of their
+tolerance), the condition number, and the identified combinations.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from .estimate import EstimateSettings, MapFit, Problem, _inverse, map_fit
+
+__all__ = ["ParameterSpec", "parameter_specs", "overrides_of", "calibration_problem", "identifiability",
+           "findings"]
+
+
+def _get(cfg: Mapping, key: str):
+    node = cfg
+    for part in key.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            raise KeyError(key)
+        node = node[part]
+    return node
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """A calibratable parameter: dotted config key, nominal value and prior tolerance.
+
+    ``relative`` parameters are :math:`p = p_0 (1 + \\theta)`, absolute ones :math:`p = \\theta`
+    (nominal 0); ``prior_sd`` is in :math:`\\theta` units.
+    """
+
+    key: str
+    nominal: float
+    relative: bool
+    prior_sd: float
+
+    def value(self, theta: float) -> float:
+        return self.nominal * (1.0 + theta) if self.relative else self.nominal + theta
+
+    def theta_of(self, value: float) -> float:
+        return value / self.nominal - 1.0 if self.relative else value - self.nominal
+
+
+def parameter_specs(cfg: Mapping, tolerances: Mapping[str, float]) -> list[ParameterSpec]:
+    """The calibratable parameters: ``tolerances`` maps dotted keys to prior standard deviations.
+
+    Raises
+    ------
+    ValueError
+        A key that is not a numeric config value (named).
+    """
+    out = []
+    for key, sd in tolerances.items():
+        try:
+            v = _get(cfg, key)
+        except KeyError:
+            raise ValueError(f"config key 'closeloop.calibration.parameters.{key}': not a key of the model's config") from None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"config key 'closeloop.calibration.parameters.{key}': '{key}' is not a number")
+        if not (isinstance(sd, (int, float)) and math.isfinite(sd) and sd > 0):
+            raise ValueError(f"config key 'closeloop.calibration.parameters.{key}': the tolerance must be a number > 0")
+        out.append(ParameterSpec(key, float(v), float(v) != 0.0, float(sd)))
+    return out
+
+
+def overrides_of(specs: list[ParameterSpec], theta: np.ndarray) -> dict:
+    """Config overrides of a parameter vector."""
+    return {s.key: s.value(float(t)) for s, t in zip(specs, theta)}
+
+
+def calibration_problem(specs: list[ParameterSpec], residual, seed0: int = 1, start=None) -> Problem:
+    """The :class:`~ssamb.closeloop.estimate.Problem` of the parameters.
+
+    ``residual(overrides, seed)`` returns the whitened feature residual of the replay with
+    those overrides. Finite-difference steps are one tolerance (a smaller step leaves weak
+    sensitivities in the replay's noise); the bounds keep every parameter within 5 tolerances
+    of its nominal value (and positive).
+    """
+    sd = np.array([s.prior_sd for s in specs])
+    lo = np.array([max(-5 * s.prior_sd, -0.9) if s.relative else -5 * s.prior_sd for s in specs])
+    return Problem(names=tuple(s.key for s in specs), theta0=np.zeros(len(specs)), prior_sd=sd, step=1.0 * sd,
+                   lower=lo, upper=5 * sd, evaluate=lambda th, seed: residual(overrides_of(specs, th), seed),
+                   start=start, seed0=seed0)
+
+
+def calibrate(specs: list[ParameterSpec], residual, settings: EstimateSettings | None = None, log=None) -> MapFit:
+    """MAP estimate of the parameters (see module docstring)."""
+    return map_fit(calibration_problem(specs, residual), settings, log)
+
+
+def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio: float) -> dict:
+    """Which parameters the data identify, and why not the others (module docstring).
+
+    Parameters
+    ----------
+    info : numpy.ndarray
+        Data information (p x p) in parameter units (:attr:`MapFit.info`).
+    prior_sd : numpy.ndarray
+        Prior standard deviations (``inf``: none -- an effect's parameter).
+    names : tuple of str
+    ratio : float
+        ``identifiable_ratio``.
+
+    Returns
+    -------
+    dict
+        ``per_parameter`` (name -> identified, se, se_alone, tolerance, partner, correlation,
+        reason), ``rank``, ``condition``, ``singular_values``, ``combinations``.
+    """
+    lam = np.where(np.isfinite(prior_sd), 1.0 / np.where(np.isfinite(prior_sd), prior_sd, 1.0) ** 2, 0.0)
+    cov = _inverse(info + np.diag(lam))
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    corr = cov / np.maximum(np.outer(se, se), 1e-300)
+    alone = 1.0 / np.sqrt(np.maximum(np.diag(info), 1e-300))
+    scale = np.where(np.isfinite(prior_sd), prior_sd, alone)
+    S = info * np.outer(scale, scale)
+    w, V = np.linalg.eigh(0.5 * (S + S.T))
+    sv = np.sqrt(np.maximum(w[::-1], 0.0))
+    V = V[:, ::-1]
+    per = {}
+    for i, name in enumerate(names):
+        tol = float(prior_sd[i])
+        c = corr[i].copy()
+        c[i] = 0.0
+        j = int(np.argmax(np.abs(c)))
+        ident = bool(se[i] <= ratio * tol) if math.isfinite(tol) else bool(alone[i] < np.inf and se[i] < np.inf)
+        reason = None
+        if not ident:
+            if alone[i] > ratio * tol:
+                reason = (f"the data barely depend on it: even alone it would be known to +-{_pct(alone[i])} "
+                          f"(tolerance +-{_pct(tol)})")
+            else:
+                partners = [names[k] for k in np.argsort(-np.abs(c))[:2] if abs(c[k]) >= 0.5]
+                reason = (f"confounded with {' and '.join(partners) or names[j]} (posterior correlation "
+                          f"{c[j]:+.2f}): alone it would be known to +-{_pct(alone[i])}, jointly only to "
+                          f"+-{_pct(se[i])} (tolerance +-{_pct(tol)})")
+        per[name] = {"identified": ident, "se": float(se[i]), "se_alone": float(alone[i]), "tolerance": tol,
+                     "partner": names[j] if len(names) > 1 else None, "correlation": float(c[j]) if len(names) > 1 else 0.0,
+                     "reason": reason}
+    combos = []
+    for k in range(len(sv)):
+        if sv[k] < 3.0:
+            break
+        v = V[:, k] / np.max(np.abs(V[:, k]))
+        terms = {names[i]: float(v[i]) for i in np.argsort(-np.abs(v)) if abs(v[i]) >= 0.1}
+        combos.append({"weights": terms, "known_to_fraction_of_tolerance": float(1.0 / sv[k])})
+    return {"per_parameter": per, "rank": int(np.sum(sv >= 3.0)), "n_parameters": len(names),
+            "condition": float(sv[0] / max(sv[-1], 1e-300)) if len(sv) else 1.0,
+            "singular_values": sv.tolist(), "combinations": combos}
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.2g} %"
+
+
+def findings(specs: list[ParameterSpec], theta: np.ndarray, ident: dict) -> tuple[dict, dict]:
+    """``closeloop.json``'s ``parameters`` (identified) and ``not_identifiable`` (with reasons)."""
+    params, not_ident = {}, {}
+    for s, t in zip(specs, theta):
+        d = ident["per_parameter"][s.key]
+        if d["identified"]:
+            value = s.value(float(t))
+            se = d["se"] * (abs(s.nominal) if s.relative else 1.0)
+            params[s.key] = {"value": value, "se": se, "nominal": s.nominal,
+                             "relative_change": float(t) if s.relative else None,
+                             "change": value - s.nominal, "identifiable": True,
+                             "tolerance": s.prior_sd * (abs(s.nominal) if s.relative else 1.0)}
+        else:
+            not_ident[s.key] = d["reason"]
+    return params, not_ident

@@ -1,0 +1,333 @@
+r"""Maximum a posteriori estimation with a noisy simulator: Gauss-Newton on a regression surrogate.
+
+The quantity fitted is a whitened feature residual :math:`r(\theta) \in \mathbb R^N` (model
+minus data, unit noise covariance: :class:`ssamb.closeloop.features.Whitener`). A replay is a
+noisy function of :math:`\theta`: every evaluation carries a fresh realisation of the loop's
+pseudo-noise, :math:`r(\theta, s) = \bar r(\theta) + \varepsilon_s`, with
+:math:`E\,\varepsilon\varepsilon^T = \rho I` (:math:`\rho < 1`: the model's share of the noise).
+Finite differences of single evaluations, or a local optimiser that compares costs of
+single evaluations, chase :math:`\varepsilon` (an optimiser that keeps the best of many
+draws finds a cost several standard deviations below its expectation, and parameters many
+standard errors off). This module therefore never compares single evaluations:
+
+1. **Design.** At the centre :math:`\theta_k`: ``centre_runs`` evaluations with distinct seeds,
+   and for each parameter the pair :math:`\theta_k \pm h_i e_i` sharing one seed (common random
+   numbers cancel the part of the noise that a parameter change does not re-randomise).
+2. **Surrogate.** The linear model :math:`r(\theta) \approx a + B(\theta - \theta_k)`: the
+   anchor :math:`a` is the mean of the centre runs (no curvature bias from the pairs), the
+   Jacobian :math:`B` the least-squares fit to every evaluation so far whose point lies within
+   ``pool_radius`` steps of the centre in every coordinate (the design points of earlier
+   iterations near the optimum keep contributing), each column shrunk towards zero by its
+   noise (:func:`_surrogate`): a parameter the features do not depend on would otherwise get a
+   column of pure noise, which looks like information (errors in variables).
+   :math:`\rho` is the pooled variance of the centre runs.
+3. **Information.** The noise of :math:`\hat B` inflates :math:`\hat B^T\hat B` by
+   :math:`N s^2 (X^TX)^{-1}` (errors in variables; :math:`s^2` the regression's residual
+   variance): a parameter the features do not depend on gets a column of pure noise, and a
+   valley along which two parameters trade off (rotor mass and coil turns) gets a curvature it
+   does not have. The correction is subtracted and the result made positive semi-definite
+   (:func:`_information`).
+4. **Step.** With the prior :math:`\theta \sim N(\theta_0, \mathrm{diag}\,\sigma_p^2)`
+   (:math:`\sigma_p = \infty` for parameters without one) the Gauss-Newton step minimises
+   :math:`\|a + B d\|^2 + \|(\theta_k + d - \theta_0)/\sigma_p\|^2`, restricted to the directions
+   the data determine (scaled information at least ``min_information``; along the others the
+   estimate stays where the prior holds it, instead of following the surrogate's noise), and
+   shortened to the bounds and a trust region of ``max_step`` prior standard deviations (or
+   steps :math:`h` without a prior).
+5. **Stop** when the step is at the noise level, :math:`\sqrt{d^T H d / p} <` ``tol`` with
+   :math:`H = \hat{\mathcal I} + \Lambda` the posterior precision (the natural metric: a step along a
+   weakly determined valley is measured against the valley's own uncertainty; the anchor's
+   noise alone moves the step by about :math:`\sqrt{\rho/m}`), or after ``max_iter`` iterations.
+   The estimate is :math:`\hat\theta = \theta_k + d`; its covariance
+   :math:`(\hat{\mathcal I} + \Lambda)^{-1}` (:math:`\hat{\mathcal I}` the corrected information,
+   :math:`\Lambda` the prior precision): the information of the data and the prior, with the
+   noise of data and model.
+
+:func:`map_fit` knows nothing of the device: it evaluates a callable ``(theta, seed) -> r``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["Problem", "MapFit", "map_fit", "EstimateSettings"]
+
+
+@dataclass(frozen=True)
+class EstimateSettings:
+    """Settings of :func:`map_fit` (the ``closeloop.estimate`` block of the config).
+
+    Attributes
+    ----------
+    centre_runs : int
+        Evaluations at each centre (distinct seeds): their mean is the surrogate's anchor and
+        their spread the model noise.
+    pair_runs : int
+        Replicates (distinct seeds) of each finite-difference pair.
+    max_iter : int
+        Gauss-Newton iterations.
+    tol : float
+        Stop when the step's norm in the posterior metric, per parameter, is below ``tol``.
+    pool_radius : float
+        Earlier evaluations within this many steps :math:`h` of the centre (every coordinate)
+        join the surrogate's regression.
+    max_step : float
+        Trust region per iteration: prior standard deviations (or steps without a prior).
+    min_information : float
+        Directions whose data information, in units of the scale (prior standard deviation, or
+        step without a prior), is below this are not stepped along: there the data are not
+        informative and the noise of the surrogate would move the estimate at random (8: the
+        data shrink the prior uncertainty at least 3 times).
+    """
+
+    centre_runs: int = 4
+    pair_runs: int = 2
+    max_iter: int = 8
+    tol: float = 1.0
+    pool_radius: float = 1.0
+    max_step: float = 2.0
+    min_information: float = 8.0
+    min_snr: float = 4.0
+
+
+@dataclass
+class Problem:
+    """A parameter estimation problem.
+
+    Attributes
+    ----------
+    names : tuple of str
+    theta0 : numpy.ndarray
+        Prior mean (and start point).
+    prior_sd : numpy.ndarray
+        Prior standard deviations (``inf``: no prior).
+    step : numpy.ndarray
+        Finite-difference half-steps :math:`h`.
+    lower, upper : numpy.ndarray
+        Bounds.
+    evaluate : callable
+        ``(theta, seed) -> r``, the whitened residual (model minus data).
+    start : numpy.ndarray, optional
+        Start point (default ``theta0``).
+    seed0 : int
+        First seed of the design (seeds are ``seed0 + 1000 k + i``).
+    """
+
+    names: tuple
+    theta0: np.ndarray
+    prior_sd: np.ndarray
+    step: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    evaluate: Callable[[np.ndarray, int], np.ndarray]
+    start: np.ndarray | None = None
+    seed0: int = 1
+
+
+@dataclass
+class MapFit:
+    """Result of :func:`map_fit`.
+
+    Attributes
+    ----------
+    theta, cov : numpy.ndarray
+        Estimate and its covariance (data, model noise and prior).
+    B : numpy.ndarray
+        Surrogate Jacobian at the estimate's centre (N x p, whitened residual per unit
+        parameter); its columns are the sensitivities the identifiability analysis reads.
+    info : numpy.ndarray
+        Data information :math:`B^T B` (p x p, without the prior).
+    chi2 : float
+        :math:`\\|a\\|^2` at the last centre (mean of the centre runs).
+    n : int
+        Length of the residual.
+    rho : float
+        Model noise variance per whitened entry (single evaluation).
+    evaluations, iterations : int
+    converged : bool
+    history : list of dict
+        Per iteration: centre, step, chi2, rho.
+    centre_runs : list
+        The residuals of the last centre's runs.
+    """
+
+    theta: np.ndarray
+    cov: np.ndarray
+    B: np.ndarray
+    info: np.ndarray
+    chi2: float
+    n: int
+    rho: float
+    evaluations: int
+    iterations: int
+    converged: bool
+    history: list = field(default_factory=list)
+    centre_runs: list = field(default_factory=list)
+
+    @property
+    def se(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+
+
+def _prior_precision(sd: np.ndarray) -> np.ndarray:
+    return np.where(np.isfinite(sd), 1.0 / np.where(np.isfinite(sd), sd, 1.0) ** 2, 0.0)
+
+
+def _inverse(H: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive semi-definite matrix, eigenvalues floored at 1e-12 of the
+    largest (a direction without information gets a huge, not a zero, variance)."""
+    w, V = np.linalg.eigh(0.5 * (H + H.T))
+    w = np.maximum(w, 1e-12 * max(float(w.max()), 1e-300))
+    return (V / w) @ V.T
+
+
+def _surrogate(runs: list, centre: np.ndarray, step: np.ndarray, radius: float, rho: float):
+    """Least-squares ``r ~ a + B (theta - centre)`` over the runs within ``radius`` steps of
+    the centre (every coordinate).
+
+    Returns ``(B, noise)``: the Jacobian and the covariance its noise adds to :math:`B^TB`,
+    :math:`N\rho\,(X^TX)^{-1}_{\theta\theta}` (:math:`\rho` the variance of a single
+    evaluation per entry, from the centre replicates -- not the regression's residual, which
+    also holds the surrogate's lack of fit over the pooled region; :math:`N` the length of the
+    residual).
+    """
+    near = [(t, r) for t, r in runs if np.all(np.abs(t - centre) <= radius * step * (1 + 1e-9))]
+    X = np.array([np.concatenate([[1.0], t - centre]) for t, _ in near])
+    Y = np.array([r for _, r in near])
+    coef, *_ = np.linalg.lstsq(X, Y, rcond=None)
+    return coef[1:].T, Y.shape[1] * rho * np.linalg.pinv(X.T @ X)[1:, 1:]
+
+
+def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "EstimateSettings"):
+    r"""Data information corrected for the Jacobian's noise, and the directions worth stepping along.
+
+    :math:`\hat{\mathcal I} = \hat B^T\hat B - N s^2 (X^TX)^{-1}` (errors in variables: the
+    noise of :math:`\hat B` would otherwise look like information, most of all along weakly
+    determined valleys), made positive semi-definite, in parameter units.
+
+    The directions: the generalised eigenvectors :math:`u` of
+    :math:`(\hat B^T\hat B,\ N s^2 (X^TX)^{-1})` in scaled coordinates (``scale``: prior standard
+    deviations, or steps), normalised to unit noise. Along :math:`u` the Jacobian's signal-to-noise
+    ratio is the eigenvalue :math:`\lambda` and the corrected information per scale unit is
+    :math:`(\lambda - 1)/\|u\|^2`; a direction is kept when :math:`\lambda \ge` ``min_snr`` (else the
+    gradient along it is the surrogate's noise) and its information is at least
+    ``min_information`` (else the data are not informative there).
+
+    Returns ``(info, keep)``: the corrected information and the kept directions (columns, in
+    scaled coordinates).
+    """
+    M = (B.T @ B) * np.outer(scale, scale)
+    Nn = noise * np.outer(scale, scale)
+    S = M - Nn
+    w, U = np.linalg.eigh(0.5 * (S + S.T))
+    info = ((U * np.maximum(w, 0.0)) @ U.T) / np.outer(scale, scale)
+    ridge = 1e-9 * max(float(np.trace(Nn)) / len(Nn), 1e-300)
+    L = np.linalg.cholesky(0.5 * (Nn + Nn.T) + ridge * np.eye(len(Nn)))
+    Linv = np.linalg.inv(L)
+    lam, V = np.linalg.eigh(Linv @ M @ Linv.T)
+    u = Linv.T @ V                                  # u^T Nn u = 1
+    per_scale = (lam - 1.0) / np.maximum(np.sum(u * u, axis=0), 1e-300)
+    keep = u[:, (lam >= s.min_snr) & (per_scale >= s.min_information)]
+    return info, keep
+
+
+def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings, trust: float) -> np.ndarray:
+    """The Gauss-Newton step on the surrogate (with prior), restricted to the kept directions
+    (:func:`_information`), shortened to the bounds and the trust region."""
+    scale = _scale(prob)
+    if keep.shape[1] == 0:
+        return np.zeros(len(theta))
+    g = (B.T @ a + lam * (theta - prob.theta0)) * scale          # scaled gradient
+    Hs = (info + np.diag(lam)) * np.outer(scale, scale)
+    Hk = keep.T @ Hs @ keep
+    z = -np.linalg.lstsq(Hk, keep.T @ g, rcond=None)[0]
+    d = (keep @ z) * scale
+    radius = trust * s.max_step * scale
+    lo = np.minimum(np.maximum(prob.lower - theta, -radius), 0.0)
+    hi = np.maximum(np.minimum(prob.upper - theta, radius), 0.0)
+    # shrink the step along its own direction to the box (keeps it in the kept subspace)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(d > 0, hi / d, np.where(d < 0, lo / d, np.inf))
+    return d * min(1.0, float(np.min(f)))
+
+
+def _scale(prob: Problem) -> np.ndarray:
+    """Natural scale of each parameter: its prior standard deviation, else its step."""
+    sd = np.asarray(prob.prior_sd, float)
+    return np.where(np.isfinite(sd), sd, prob.step)
+
+
+def _centre(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list) -> np.ndarray:
+    """``centre_runs`` evaluations at ``theta`` with distinct seeds (added to ``runs``)."""
+    base = prob.seed0 + 1000 * k
+    out = []
+    for j in range(s.centre_runs):
+        r = np.asarray(prob.evaluate(theta, base + 500 + j), float)
+        out.append(r)
+        runs.append((theta.copy(), r))
+    return np.array(out)
+
+
+def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list) -> None:
+    """The +-h pairs around ``theta``, ``pair_runs`` replicates each, one seed per replicate of a
+    pair (added to ``runs``)."""
+    base = prob.seed0 + 1000 * k
+    for i in range(len(theta)):
+        for rep in range(s.pair_runs):
+            for sign in (1.0, -1.0):
+                t = theta.copy()
+                t[i] = np.clip(t[i] + sign * prob.step[i], prob.lower[i], prob.upper[i])
+                if t[i] != theta[i]:
+                    runs.append((t, np.asarray(prob.evaluate(t, base + 100 * rep + i), float)))
+
+
+def _margin(n: int, q: float) -> float:
+    r"""Two standard deviations of :math:`\|a_1\|^2 - \|a_0\|^2` for two anchors with the same
+    expectation (noise variance :math:`q` per entry each, :math:`\|E a\|^2 \approx n`):
+    :math:`\mathrm{var} = 8nq + 4nq^2`."""
+    return 2.0 * float(np.sqrt(8 * n * q + 4 * n * q * q))
+
+
+def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callable | None = None) -> MapFit:
+    """Estimate ``prob`` (see module docstring)."""
+    s = settings or EstimateSettings()
+    lam = _prior_precision(np.asarray(prob.prior_sd, float))
+    theta = np.clip(np.asarray(prob.theta0 if prob.start is None else prob.start, float).copy(), prob.lower, prob.upper)
+    runs: list = []
+    C = _centre(prob, theta, 0, s, runs)
+    _pairs(prob, theta, 0, s, runs)
+    rhos = [float(np.mean(C.var(axis=0, ddof=1)))] if len(C) > 1 else [0.0]
+    a, trust, k, history, converged = C.mean(axis=0), 1.0, 0, [], False
+    for it in range(s.max_iter):
+        B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, float(np.mean(rhos)))
+        info, keep = _information(B, noise, _scale(prob), s)
+        d = _solve_step(a, B, info, keep, lam, theta, prob, s, trust)
+        H = info + np.diag(lam)
+        cov = _inverse(H)
+        norm = float(np.sqrt(max(d @ H @ d, 0.0) / len(d)))
+        rho = float(np.mean(rhos))
+        history.append({"iteration": it, "theta": theta.tolist(), "step": d.tolist(), "chi2": float(a @ a),
+                        "rho": rho, "step_norm": norm, "determined_directions": int(keep.shape[1]), "trust": trust})
+        if log is not None:
+            log(f"iteration {it}: chi2 {a @ a:.1f} (N {len(a)}), step {norm:.2f} (posterior metric, per parameter), "
+                f"{keep.shape[1]} determined directions")
+        if norm < s.tol:
+            converged = True
+            break
+        k += 1
+        Ct = _centre(prob, np.clip(theta + d, prob.lower, prob.upper), k, s, runs)
+        rhos.append(float(np.mean(Ct.var(axis=0, ddof=1))) if len(Ct) > 1 else 0.0)
+        at = Ct.mean(axis=0)
+        if at @ at <= a @ a + _margin(len(a), rho / max(s.centre_runs, 1)):
+            theta, a, C, trust = np.clip(theta + d, prob.lower, prob.upper), at, Ct, min(1.0, 2 * trust)
+            _pairs(prob, theta, k, s, runs)
+        else:
+            trust *= 0.5                  # rejected: the trial's runs stay in the pool and inform B along d
+            if log is not None:
+                log(f"  step rejected (chi2 {at @ at:.1f}); trust region halved")
+    theta_hat = np.clip(theta + d, prob.lower, prob.upper) if converged else theta
+    return MapFit(theta=theta_hat, cov=cov, B=B, info=info, chi2=float(a @ a), n=len(a), rho=float(np.mean(rhos)),
+                  evaluations=len(runs), iterations=len(history), converged=converged, history=history,
+                  centre_runs=list(C))
