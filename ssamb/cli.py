@@ -74,8 +74,10 @@ def _cmd_rig(args) -> None:
 
 def _cmd_closeloop(args) -> None:
     from .closeloop import run_closeloop
+    from .closeloop.report import findings_text
 
-    run_closeloop(args.data, args.out, config=args.config, progress=not args.quiet)
+    rep = run_closeloop(args.data, args.out, config=args.config, progress=not args.quiet)
+    print("\n".join(findings_text(rep)))
 
 
 def main(argv: list[str] | None = None) -> int:

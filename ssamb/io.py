@@ -22,6 +22,7 @@ from __future__ import annotations
 import csv
 import errno
 import json
+import math
 import os
 import platform
 import shutil
@@ -146,6 +147,27 @@ def jsonable(o: Any):
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def plain(o: Any):
+    """``o`` as strict JSON values: mappings with string keys, lists, finite numbers (NaN and
+    infinities become None), NumPy scalars and arrays as Python values, complex numbers as
+    ``{abs, angle_rad}``, paths as strings (the analysis reports' one converter)."""
+    if isinstance(o, dict):
+        return {str(k): plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [plain(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return plain(o.tolist())
+    if isinstance(o, np.generic):
+        return plain(o.item())
+    if isinstance(o, complex):
+        return {"abs": abs(o), "angle_rad": math.atan2(o.imag, o.real)}
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if isinstance(o, Path):
+        return str(o)
+    return o
 
 
 def write_json(path: str | Path, obj: Any) -> None:

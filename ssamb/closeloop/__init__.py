@@ -1,18 +1,24 @@
-"""Close the loop with measured data: find what the nominal model lacks, name it, add it.
+"""Close the loop with measured data: calibrate the model's own parameters, find what it still
+lacks, name it, add it.
 
 ``python -m ssamb closeloop DATA --out DIR`` (:func:`run_closeloop`) walks the chain
 
-1. **replay** (:mod:`.replay`): the nominal nonlinear model driven by the excitation recorded
-   in the data; the record is split (:mod:`.data`) into a fitting and a held-out part;
-2. **residual** (:mod:`.residual`, :mod:`.spectra`): per-channel residual, noise floor,
-   offsets, lines the excitation lacks, excited-line residual and the measured/model ratio of
-   the sensor paths, cross-axis coherence, ripple distortion, whiteness;
-3. **signatures** (:mod:`.signatures`): the evidence for each library effect, ranked before
-   any fitting;
-4. **fit** (:mod:`.models`, :mod:`.fit`, :mod:`.search`): the leading candidates fitted by
-   simulation on the fitting part, scored on the held-out part, added greedily while the
-   held-out error drops significantly, until the residual is consistent with noise;
-5. **report** (:mod:`.report`, :mod:`.figures`): ``closeloop.json`` and figures.
+1. **replay** (:mod:`.replay`): the model driven by the excitation recorded in the data, with
+   the data's logging chain; a prediction is the mean of several replays (the loop's noise
+   differs from replay to replay as it does from the rig); the record is split (:mod:`.data`)
+   into a fitting and a held-out part;
+2. **features** (:mod:`.features`, :mod:`.comparison`): what a replay can be compared with --
+   DC, the response at the excited lines, lines the excitation lacks -- each with its noise
+   estimated from the data (off-grid bins, period-to-period spread) and from the replays;
+3. **calibration** (:mod:`.calibration`, :mod:`.estimate`): the nominal parameters a rig never
+   matches exactly, estimated by simulation (MAP with their tolerances as priors), with the
+   identifiability of each read off the sensitivity matrix;
+4. **residual and signatures** (:mod:`.residual`, :mod:`.spectra`, :mod:`.signatures`): the
+   evidence for each library effect in the calibrated model's residual, before any fitting;
+5. **effects** (:mod:`.models`, :mod:`.fit`, :mod:`.search`): the leading candidates fitted on
+   the calibrated model, judged on the held-out part, added while they explain it; then the
+   parameters and effects refitted jointly;
+6. **report** (:mod:`.report`, :mod:`.figures`): ``closeloop.json`` and figures.
 
 :func:`analyse` is the pure analysis (arrays in, dictionary out).
 """
@@ -34,31 +40,35 @@ __all__ = ["analyse", "run_closeloop", "DataError"]
 
 def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", progress: bool = False):
     from ..io import validate_measured
-    from .data import make_split, record_from_arrays
+    from .calibration import parameter_specs
+    from .comparison import Comparison
+    from .data import make_split, record_from_arrays, views
     from .replay import Replayer
     from .report import build_report
-    from .search import greedy_search
+    from .residual import compute_features
+    from .search import search
     from .settings import settings_from_config
-    from .spectra import make_frame
 
     t0 = time.perf_counter()
     settings = settings_from_config(cfg)
+    specs = parameter_specs(cfg, settings.calibration)
     validate_measured(arrays, source)
     rec = record_from_arrays(arrays, meta, float(cfg["controller"]["fs_hz"]), source)
     split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s,
                        settings.min_holdout_s, source)
     replay = Replayer(cfg, rec)
-    nominal = replay.run()
-    fit_frame = make_frame(rec.fs_hz, split.i0, split.i_fit - split.i0, rec.signal, split.n_period, rec.lines_hz)
-    hold_frame = make_frame(rec.fs_hz, split.i_fit, split.i_end - split.i_fit, rec.signal, split.n_period, rec.lines_hz)
-    search = greedy_search(rec, split, replay, nominal, fit_frame, hold_frame, settings, progress=progress)
+    cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings.floor_position_m,
+                           settings.floor_current_a)
+    cmp.calibrate_noise()
+    ft = compute_features(rec, cmp.fit.frame, views(rec.channels), views(cmp.prediction()), settings)
+    cmp.set_lines(sorted(ln["f_hz"] for ln in ft.lines))
+    result = search(cmp, specs, settings, progress=progress)
     wall_s = time.perf_counter() - t0
     log.info("%s: %d simulations (%.1f s, %.3f s each); analysis %.1f s", source, replay.n_sims, replay.wall_s,
              replay.wall_s / max(replay.n_sims, 1), wall_s)
     # wall times go to the log only: closeloop.json is byte-reproducible
-    report = build_report(rec, split, nominal, search, settings, source, {"simulations": replay.n_sims})
-    return report, {"record": rec, "split": split, "nominal": nominal, "search": search,
-                    "fit_frame": fit_frame, "hold_frame": hold_frame, "settings": settings}
+    report = build_report(rec, split, result, settings, source, {"simulations": replay.n_sims})
+    return report, {"record": rec, "split": split, "search": result, "comparison": cmp, "settings": settings}
 
 
 def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping) -> dict:
@@ -124,7 +134,7 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True) -> dic
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}."))
     try:
-        report["figures"] = make_figures(art, tmp)
+        report["figures"] = make_figures(art, report, tmp)
         write_json(tmp / "closeloop.json", report)
         replace_dir(tmp, out_dir, owned)
     finally:

@@ -39,7 +39,7 @@ import numpy as np
 from .estimate import EstimateSettings, MapFit, Problem, _inverse, map_fit
 
 __all__ = ["ParameterSpec", "parameter_specs", "overrides_of", "calibration_problem", "identifiability",
-           "findings"]
+           "findings", "Calibration", "calibrate_model"]
 
 
 def _get(cfg: Mapping, key: str):
@@ -76,19 +76,21 @@ def parameter_specs(cfg: Mapping, tolerances: Mapping[str, float]) -> list[Param
 
     Raises
     ------
-    ValueError
+    ssamb.config.ConfigError
         A key that is not a numeric config value (named).
     """
+    from ..config import ConfigError
+
     out = []
     for key, sd in tolerances.items():
         try:
             v = _get(cfg, key)
         except KeyError:
-            raise ValueError(f"config key 'closeloop.calibration.parameters.{key}': not a key of the model's config") from None
+            raise ConfigError(f"config key 'closeloop.calibration.{key}': not a key of the model's config") from None
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"config key 'closeloop.calibration.parameters.{key}': '{key}' is not a number")
+            raise ConfigError(f"config key 'closeloop.calibration.{key}': '{key}' is not a number")
         if not (isinstance(sd, (int, float)) and math.isfinite(sd) and sd > 0):
-            raise ValueError(f"config key 'closeloop.calibration.parameters.{key}': the tolerance must be a number > 0")
+            raise ConfigError(f"config key 'closeloop.calibration.{key}': the tolerance must be a number > 0")
         out.append(ParameterSpec(key, float(v), float(v) != 0.0, float(sd)))
     return out
 
@@ -98,28 +100,83 @@ def overrides_of(specs: list[ParameterSpec], theta: np.ndarray) -> dict:
     return {s.key: s.value(float(t)) for s, t in zip(specs, theta)}
 
 
-def calibration_problem(specs: list[ParameterSpec], residual, seed0: int = 1, start=None) -> Problem:
+def calibration_problem(specs: list[ParameterSpec], residual, seed0: int = 1, start=None, groups=None,
+                        max_step_rel: float = 0.05) -> Problem:
     """The :class:`~ssamb.closeloop.estimate.Problem` of the parameters.
 
     ``residual(overrides, seed)`` returns the whitened feature residual of the replay with
-    those overrides. Finite-difference steps are one tolerance (a smaller step leaves weak
-    sensitivities in the replay's noise); the bounds keep every parameter within 5 tolerances
-    of its nominal value (and positive).
+    those overrides. Finite-difference steps are one tolerance, at most ``max_step_rel`` of the
+    nominal value (a smaller step leaves weak sensitivities in the replay's noise, a larger one
+    reaches where the response is no longer linear: a wide tolerance like the iron's
+    permeability); the bounds keep every parameter within 5 tolerances of its nominal value (and
+    positive).
     """
     sd = np.array([s.prior_sd for s in specs])
     lo = np.array([max(-5 * s.prior_sd, -0.9) if s.relative else -5 * s.prior_sd for s in specs])
-    return Problem(names=tuple(s.key for s in specs), theta0=np.zeros(len(specs)), prior_sd=sd, step=1.0 * sd,
-                   lower=lo, upper=5 * sd, evaluate=lambda th, seed: residual(overrides_of(specs, th), seed),
-                   start=start, seed0=seed0)
+    return Problem(names=tuple(s.key for s in specs), theta0=np.zeros(len(specs)), prior_sd=sd,
+                   step=np.array([min(x.prior_sd, max_step_rel) if x.relative else x.prior_sd for x in specs]),
+                   lower=lo, upper=5 * sd,
+                   evaluate=(lambda th, seed: residual(overrides_of(specs, th), seed)) if residual else None,
+                   start=start, seed0=seed0, groups=groups)
 
 
-def calibrate(specs: list[ParameterSpec], residual, settings: EstimateSettings | None = None, log=None) -> MapFit:
-    """MAP estimate of the parameters (see module docstring)."""
-    return map_fit(calibration_problem(specs, residual), settings, log)
+@dataclass
+class Calibration:
+    """Calibrated nominal parameters.
+
+    Attributes
+    ----------
+    specs : list of ParameterSpec
+    fit : MapFit or None
+        None when no parameter is calibrated.
+    ident : dict
+        :func:`identifiability` of the estimate.
+    conflicts : list of str
+        Parameters whose estimate lies more than ``conflict_z`` tolerances from nominal: the data
+        contradict the stated tolerance (often an effect the model lacks, which the parameter
+        absorbs; the effect search starts with them at their nominal value).
+    """
+
+    specs: list
+    fit: MapFit | None
+    ident: dict
+    conflicts: list
+
+    @property
+    def theta(self) -> np.ndarray:
+        return np.zeros(len(self.specs)) if self.fit is None else self.fit.theta
+
+    def overrides(self, reset_conflicts: bool = False) -> dict:
+        th = self.theta.copy()
+        if reset_conflicts:
+            for i, s in enumerate(self.specs):
+                if s.key in self.conflicts:
+                    th[i] = 0.0
+        return overrides_of(self.specs, th)
 
 
-def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio: float) -> dict:
-    """Which parameters the data identify, and why not the others (module docstring).
+def calibrate_model(cmp, specs: list[ParameterSpec], effects: list, settings: EstimateSettings, ratio: float,
+                    conflict_z: float, seed0: int = 1, start=None, log=None) -> Calibration:
+    """MAP calibration of ``specs`` on the fitting part of ``cmp`` (a
+    :class:`~ssamb.closeloop.comparison.Comparison`) with ``effects`` in the model."""
+    if not specs:
+        return Calibration(specs, None, {"per_parameter": {}, "rank": 0, "n_parameters": 0, "condition": 1.0,
+                                         "singular_values": [], "combinations": []}, [])
+
+    def build(theta):
+        return overrides_of(specs, theta), list(effects)
+    prob = calibration_problem(specs, None, seed0=seed0, start=start, groups=cmp.groups(cmp.fit))
+    prob.evaluate = cmp.evaluator(cmp.fit, build)
+    fit = map_fit(prob, settings, log)
+    sd = np.array([s.prior_sd for s in specs])
+    ident = identifiability(fit.info, sd, tuple(s.key for s in specs), ratio, cov=fit.cov)
+    conflicts = [s.key for s, t in zip(specs, fit.theta) if abs(t) > conflict_z * s.prior_sd]
+    return Calibration(specs, fit, ident, conflicts)
+
+
+def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio: float,
+                    cov: np.ndarray | None = None) -> dict:
+    r"""Which parameters the data identify, and why not the others (module docstring).
 
     Parameters
     ----------
@@ -130,6 +187,9 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
     names : tuple of str
     ratio : float
         ``identifiable_ratio``.
+    cov : numpy.ndarray, optional
+        Posterior covariance of the estimate (:attr:`MapFit.cov`, which holds the noise the
+        replicates measured); default :math:`(\mathcal I + \Lambda)^{-1}`.
 
     Returns
     -------
@@ -138,11 +198,13 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
         reason), ``rank``, ``condition``, ``singular_values``, ``combinations``.
     """
     lam = np.where(np.isfinite(prior_sd), 1.0 / np.where(np.isfinite(prior_sd), prior_sd, 1.0) ** 2, 0.0)
-    cov = _inverse(info + np.diag(lam))
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    corr = cov / np.maximum(np.outer(se, se), 1e-300)
     alone = 1.0 / np.sqrt(np.maximum(np.diag(info), 1e-300))
-    scale = np.where(np.isfinite(prior_sd), prior_sd, alone)
+    scale = np.where(np.isfinite(prior_sd), prior_sd, np.minimum(alone, 1e150))
+    joint = _inverse(info + np.diag(lam), scale)          # what the information alone implies
+    cov = joint if cov is None else cov
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    sj = np.sqrt(np.maximum(np.diag(joint), 1e-300))
+    corr = joint / np.outer(sj, sj)
     S = info * np.outer(scale, scale)
     w, V = np.linalg.eigh(0.5 * (S + S.T))
     sv = np.sqrt(np.maximum(w[::-1], 0.0))
@@ -153,20 +215,10 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
         c = corr[i].copy()
         c[i] = 0.0
         j = int(np.argmax(np.abs(c)))
-        ident = bool(se[i] <= ratio * tol) if math.isfinite(tol) else bool(alone[i] < np.inf and se[i] < np.inf)
-        reason = None
-        if not ident:
-            if alone[i] > ratio * tol:
-                reason = (f"the data barely depend on it: even alone it would be known to +-{_pct(alone[i])} "
-                          f"(tolerance +-{_pct(tol)})")
-            else:
-                partners = [names[k] for k in np.argsort(-np.abs(c))[:2] if abs(c[k]) >= 0.5]
-                reason = (f"confounded with {' and '.join(partners) or names[j]} (posterior correlation "
-                          f"{c[j]:+.2f}): alone it would be known to +-{_pct(alone[i])}, jointly only to "
-                          f"+-{_pct(se[i])} (tolerance +-{_pct(tol)})")
+        ident = bool(se[i] <= ratio * tol) if math.isfinite(tol) else bool(se[i] < 1e5 * alone[i])
         per[name] = {"identified": ident, "se": float(se[i]), "se_alone": float(alone[i]), "tolerance": tol,
                      "partner": names[j] if len(names) > 1 else None, "correlation": float(c[j]) if len(names) > 1 else 0.0,
-                     "reason": reason}
+                     "reason": None if ident else _reason(i, names, c, alone[i], se[i], tol, ratio)}
     combos = []
     for k in range(len(sv)):
         if sv[k] < 3.0:
@@ -177,6 +229,22 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
     return {"per_parameter": per, "rank": int(np.sum(sv >= 3.0)), "n_parameters": len(names),
             "condition": float(sv[0] / max(sv[-1], 1e-300)) if len(sv) else 1.0,
             "singular_values": sv.tolist(), "combinations": combos}
+
+
+def _reason(i: int, names: tuple, c: np.ndarray, alone: float, se: float, tol: float, ratio: float) -> str:
+    """Why parameter ``i`` is not identified: no sensitivity, or the parameters it trades off with."""
+    if not math.isfinite(tol):
+        return "the estimate did not move along a direction the data determine (no reliable sensitivity)"
+    if alone > ratio * tol:
+        return f"the data barely depend on it: even alone it would be known to +-{_pct(alone)} (tolerance +-{_pct(tol)})"
+    order = [k for k in np.argsort(-np.abs(c)) if k != i]
+    strong = [names[k] for k in order[:2] if abs(c[k]) >= 0.5]
+    if strong:
+        who = f"confounded with {' and '.join(strong)} (posterior correlation {c[order[0]]:+.2f})"
+    else:
+        who = (f"confounded with a combination of several parameters ({', '.join(names[k] for k in order[:3])}; "
+               f"none alone correlates beyond {abs(c[order[0]]):.2f})")
+    return f"{who}: alone it would be known to +-{_pct(alone)}, jointly only to +-{_pct(se)} (tolerance +-{_pct(tol)})"
 
 
 def _pct(x: float) -> str:

@@ -32,9 +32,11 @@ standard errors off). This module therefore never compares single evaluations:
    :math:`\|a + B d\|^2 + \|(\theta_k + d - \theta_0)/\sigma_p\|^2`, restricted to the directions
    the data determine (scaled information at least ``min_information``; along the others the
    estimate stays where the prior holds it, instead of following the surrogate's noise), and
-   shortened to the bounds and a trust region of ``max_step`` prior standard deviations (or
-   steps :math:`h` without a prior).
-5. **Stop** when the step is at the noise level, :math:`\sqrt{d^T H d / p} <` ``tol`` with
+   shortened to the bounds and a trust region of ``max_step`` steps :math:`h`.
+5. **Replicate** the pairs at the same centre when the step is at the noise level but some
+   direction looks informative while its Jacobian is still noise (the pooled regression gains
+   the replicates: a weakly determined valley between two parameters needs them).
+6. **Stop** when the step is at the noise level, :math:`\sqrt{d^T H d / p} <` ``tol`` with
    :math:`H = \hat{\mathcal I} + \Lambda` the posterior precision (the natural metric: a step along a
    weakly determined valley is measured against the valley's own uncertainty; the anchor's
    noise alone moves the step by about :math:`\sqrt{\rho/m}`), or after ``max_iter`` iterations.
@@ -74,7 +76,7 @@ class EstimateSettings:
         Earlier evaluations within this many steps :math:`h` of the centre (every coordinate)
         join the surrogate's regression.
     max_step : float
-        Trust region per iteration: prior standard deviations (or steps without a prior).
+        Trust region per iteration, in finite-difference steps :math:`h`.
     min_information : float
         Directions whose data information, in units of the scale (prior standard deviation, or
         step without a prior), is below this are not stepped along: there the data are not
@@ -90,6 +92,7 @@ class EstimateSettings:
     max_step: float = 2.0
     min_information: float = 8.0
     min_snr: float = 4.0
+    max_trust: float = 16.0
 
 
 @dataclass
@@ -113,6 +116,9 @@ class Problem:
         Start point (default ``theta0``).
     seed0 : int
         First seed of the design (seeds are ``seed0 + 1000 k + i``).
+    groups : list of index arrays, optional
+        Entries of the residual that share a noise level (the views): the replicates' excess
+        variance is pooled per group for the sandwich covariance (:func:`_sandwich`).
     """
 
     names: tuple
@@ -124,6 +130,7 @@ class Problem:
     evaluate: Callable[[np.ndarray, int], np.ndarray]
     start: np.ndarray | None = None
     seed0: int = 1
+    groups: list | None = None
 
 
 @dataclass
@@ -138,7 +145,8 @@ class MapFit:
         Surrogate Jacobian at the estimate's centre (N x p, whitened residual per unit
         parameter); its columns are the sensitivities the identifiability analysis reads.
     info : numpy.ndarray
-        Data information :math:`B^T B` (p x p, without the prior).
+        Data information :math:`\\hat B^T\\hat B` less its noise (p x p, without the prior), in all
+        directions.
     chi2 : float
         :math:`\\|a\\|^2` at the last centre (mean of the centre runs).
     n : int
@@ -175,16 +183,18 @@ def _prior_precision(sd: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(sd), 1.0 / np.where(np.isfinite(sd), sd, 1.0) ** 2, 0.0)
 
 
-def _inverse(H: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric positive semi-definite matrix, eigenvalues floored at 1e-12 of the
-    largest (a direction without information gets a huge, not a zero, variance)."""
-    w, V = np.linalg.eigh(0.5 * (H + H.T))
-    w = np.maximum(w, 1e-12 * max(float(w.max()), 1e-300))
-    return (V / w) @ V.T
+def _inverse(H: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive semi-definite matrix in the coordinates ``theta / scale``,
+    eigenvalues floored at 1e-12 of the largest and at 1e-12 (a direction without information
+    gets a huge, not an infinite, variance)."""
+    S = np.outer(scale, scale)
+    w, V = np.linalg.eigh(0.5 * (H + H.T) * S)
+    w = np.maximum(w, max(1e-12 * float(w.max()), 1e-12))
+    return ((V / w) @ V.T) * S
 
 
 def _surrogate(runs: list, centre: np.ndarray, step: np.ndarray, radius: float, rho: float):
-    """Least-squares ``r ~ a + B (theta - centre)`` over the runs within ``radius`` steps of
+    r"""Least-squares ``r ~ a + B (theta - centre)`` over the runs within ``radius`` steps of
     the centre (every coordinate).
 
     Returns ``(B, noise)``: the Jacobian and the covariance its noise adds to :math:`B^TB`,
@@ -200,7 +210,7 @@ def _surrogate(runs: list, centre: np.ndarray, step: np.ndarray, radius: float, 
     return coef[1:].T, Y.shape[1] * rho * np.linalg.pinv(X.T @ X)[1:, 1:]
 
 
-def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "EstimateSettings"):
+def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "EstimateSettings", prior_sd: np.ndarray):
     r"""Data information corrected for the Jacobian's noise, and the directions worth stepping along.
 
     :math:`\hat{\mathcal I} = \hat B^T\hat B - N s^2 (X^TX)^{-1}` (errors in variables: the
@@ -213,24 +223,31 @@ def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "Estima
     ratio is the eigenvalue :math:`\lambda` and the corrected information per scale unit is
     :math:`(\lambda - 1)/\|u\|^2`; a direction is kept when :math:`\lambda \ge` ``min_snr`` (else the
     gradient along it is the surrogate's noise) and its information is at least
-    ``min_information`` (else the data are not informative there).
+    ``min_information`` (else the data are not informative there) -- or, for a direction mostly
+    along parameters without a prior (an effect's), at least one step's worth (a step :math:`h`
+    moves the features by a standard deviation).
 
-    Returns ``(info, keep)``: the corrected information and the kept directions (columns, in
-    scaled coordinates).
+    Returns ``(info, keep, pending)``: the corrected information, the kept directions (columns,
+    in scaled coordinates) and the number of directions that look informative but whose
+    Jacobian is still too noisy (more replicates decide them).
     """
     M = (B.T @ B) * np.outer(scale, scale)
     Nn = noise * np.outer(scale, scale)
-    S = M - Nn
-    w, U = np.linalg.eigh(0.5 * (S + S.T))
-    info = ((U * np.maximum(w, 0.0)) @ U.T) / np.outer(scale, scale)
+    info = _psd(M - Nn) / np.outer(scale, scale)
     ridge = 1e-9 * max(float(np.trace(Nn)) / len(Nn), 1e-300)
     L = np.linalg.cholesky(0.5 * (Nn + Nn.T) + ridge * np.eye(len(Nn)))
     Linv = np.linalg.inv(L)
     lam, V = np.linalg.eigh(Linv @ M @ Linv.T)
     u = Linv.T @ V                                  # u^T Nn u = 1
     per_scale = (lam - 1.0) / np.maximum(np.sum(u * u, axis=0), 1e-300)
-    keep = u[:, (lam >= s.min_snr) & (per_scale >= s.min_information)]
-    return info, keep
+    # a parameter without a prior need only be measurable (a step moves the features by a
+    # standard deviation); one with a prior must be informed beyond it
+    flat = np.isinf(np.asarray(prior_sd, float))
+    share_flat = np.sum(u[flat] ** 2, axis=0) / np.maximum(np.sum(u * u, axis=0), 1e-300)
+    need = np.where(share_flat > 0.5, 1.0, s.min_information)
+    keep = u[:, (lam >= s.min_snr) & (per_scale >= need)]
+    pending = int(np.sum((lam < s.min_snr) & (per_scale >= need)))
+    return info, keep, pending
 
 
 def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings, trust: float) -> np.ndarray:
@@ -244,7 +261,7 @@ def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings
     Hk = keep.T @ Hs @ keep
     z = -np.linalg.lstsq(Hk, keep.T @ g, rcond=None)[0]
     d = (keep @ z) * scale
-    radius = trust * s.max_step * scale
+    radius = trust * s.max_step * prob.step
     lo = np.minimum(np.maximum(prob.lower - theta, -radius), 0.0)
     hi = np.maximum(np.minimum(prob.upper - theta, radius), 0.0)
     # shrink the step along its own direction to the box (keeps it in the kept subspace)
@@ -290,6 +307,89 @@ def _margin(n: int, q: float) -> float:
     return 2.0 * float(np.sqrt(8 * n * q + 4 * n * q * q))
 
 
+def _basis(keep: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal bases of the kept directions and of their complement (scaled coordinates).
+
+    The kept vectors are normalised first: their lengths span many orders of magnitude (a
+    direction the data pin down to 1e-6 of its tolerance is short), which must not make them
+    look dependent.
+    """
+    if keep.shape[1] == 0:
+        return np.zeros((p, 0)), np.eye(p)
+    K = keep / np.linalg.norm(keep, axis=0)
+    U, sv, _ = np.linalg.svd(K, full_matrices=True)
+    k = int(np.sum(sv > 1e-8 * sv[0]))
+    return U[:, :k], U[:, k:]
+
+
+def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.ndarray, B: np.ndarray,
+              scale: np.ndarray, reps: np.ndarray, m: int, groups) -> tuple:
+    r"""Covariance of the estimate, with the noise the replicates measure.
+
+    The estimate moved only along the kept directions (:func:`_information`); along the others
+    it is where the prior holds it. In scaled coordinates (prior standard deviations, or steps)
+    the prior is isotropic over the parameters that have one, so the two parts separate: on the
+    kept subspace :math:`Q` the sandwich of the data (below), on its complement :math:`Q_c` the
+    prior, :math:`(Q_c^T \Lambda Q_c)^{+}`. A parameter without a prior (an effect's) that lies
+    mostly outside :math:`Q` was not estimated: its variance is unbounded (:math:`10^{12}` scale
+    units) and it is left out.
+
+    **The noise.** The replicates ``reps`` (runs at the final centre with distinct seeds)
+    measure the noise of one replay per entry; a rig is one replay of the same physics, so the
+    anchor :math:`a = \text{model mean} - \text{data}` has per-entry variance
+    :math:`\sigma_j^2 (1 + 1/m)` -- the noise the within-record estimates cannot see included (a
+    replay's random hysteresis and current-loop state, intermittent duty saturation at
+    excitation peaks). Pooled per group (median, corrected for the median of a
+    :math:`\chi^2_{r-1}/(r-1)`; a one-entry group's variance itself) and never below the assumed
+    unit, it gives :math:`\Sigma = \mathrm{diag}(\sigma^2)` and on :math:`Q` the sandwich
+    :math:`H^{-1}(B_Q^T\Sigma B_Q - \bar\sigma^2 N_{B,Q} + \Lambda_Q)H^{-1}`,
+    :math:`H = Q^T(\hat{\mathcal I} + \Lambda)Q`, plus what the complement's prior spread does to
+    the kept estimate through the coupling :math:`B_Q^T B_{Q_c}` (the complement is held at the
+    prior mean, the truth is anywhere in the prior: a weakly seen parameter biases a well seen
+    one), :math:`G P_c G^T`, :math:`G = H^{-1} B_Q^T B_{Q_c}`. Returns ``(cov, factors)`` in
+    parameter units.
+    """
+    r = len(reps)
+    v = reps.var(axis=0, ddof=1) * (1.0 + 1.0 / m)
+    med = (1 - 2 / (9 * (r - 1))) ** 3
+    sig = np.ones(v.shape[0])
+    facs = []
+    for g in (groups or [np.arange(v.shape[0])]):
+        if len(g):
+            f = max(float(np.median(v[g])) / (med if len(g) > 1 else 1.0), 1.0)
+            sig[g] = f
+            facs.append(f)
+    p = len(scale)
+    S = np.outer(scale, scale)
+    Q0, _ = _basis(keep, p)
+    idx = np.flatnonzero((lam > 0) | (np.sum(Q0 ** 2, axis=1) > 0.5))
+    sub = np.ix_(idx, idx)
+    Q, Qc = _basis(keep[idx], len(idx))
+    Ls = np.diag((lam * scale ** 2)[idx])
+    Bq = (B * scale)[:, idx] @ Q
+    Hk = Q.T @ ((info * S)[sub] + Ls) @ Q
+    meat = _psd(Bq.T @ (Bq * sig[:, None]) - float(np.mean(sig)) * Q.T @ (noise * S)[sub] @ Q) + Q.T @ Ls @ Q
+    Hki = np.linalg.inv(0.5 * (Hk + Hk.T)) if len(Hk) else Hk
+    Pc = np.linalg.pinv(Qc.T @ Ls @ Qc, rcond=1e-6, hermitian=True)
+    # the complement sits at the prior mean while the truth is anywhere in the prior: through the
+    # information coupling the two subspaces (unbiased from the raw Jacobian, whose noise does
+    # not correlate between distinct pairs) it biases the kept part
+    Bc = (B * scale)[:, idx] @ Qc
+    G = Hki @ (Bq.T @ Bc)
+    cov_r = Q @ (Hki @ meat @ Hki + G @ Pc @ G.T) @ Q.T + Qc @ Pc @ Qc.T
+    cov_s = np.zeros((p, p))
+    cov_s[sub] = cov_r
+    out = np.setdiff1d(np.arange(p), idx)
+    cov_s[out, out] = 1e12
+    return cov_s * S, facs
+
+
+def _psd(A: np.ndarray) -> np.ndarray:
+    """The nearest positive semi-definite matrix (negative eigenvalues set to zero)."""
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    return (V * np.maximum(w, 0.0)) @ V.T
+
+
 def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callable | None = None) -> MapFit:
     """Estimate ``prob`` (see module docstring)."""
     s = settings or EstimateSettings()
@@ -302,10 +402,9 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     a, trust, k, history, converged = C.mean(axis=0), 1.0, 0, [], False
     for it in range(s.max_iter):
         B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, float(np.mean(rhos)))
-        info, keep = _information(B, noise, _scale(prob), s)
+        info, keep, pending = _information(B, noise, _scale(prob), s, prob.prior_sd)
         d = _solve_step(a, B, info, keep, lam, theta, prob, s, trust)
         H = info + np.diag(lam)
-        cov = _inverse(H)
         norm = float(np.sqrt(max(d @ H @ d, 0.0) / len(d)))
         rho = float(np.mean(rhos))
         history.append({"iteration": it, "theta": theta.tolist(), "step": d.tolist(), "chi2": float(a @ a),
@@ -313,6 +412,13 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         if log is not None:
             log(f"iteration {it}: chi2 {a @ a:.1f} (N {len(a)}), step {norm:.2f} (posterior metric, per parameter), "
                 f"{keep.shape[1]} determined directions")
+        if norm < s.tol and pending and it < s.max_iter - 1:
+            # informative directions whose Jacobian is still noise: replicate the pairs here
+            k += 1
+            _pairs(prob, theta, k, s, runs)
+            if log is not None:
+                log(f"  {pending} direction(s) informative but not yet above the Jacobian's noise: more pairs")
+            continue
         if norm < s.tol:
             converged = True
             break
@@ -321,13 +427,17 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         rhos.append(float(np.mean(Ct.var(axis=0, ddof=1))) if len(Ct) > 1 else 0.0)
         at = Ct.mean(axis=0)
         if at @ at <= a @ a + _margin(len(a), rho / max(s.centre_runs, 1)):
-            theta, a, C, trust = np.clip(theta + d, prob.lower, prob.upper), at, Ct, min(1.0, 2 * trust)
+            theta, a, C, trust = np.clip(theta + d, prob.lower, prob.upper), at, Ct, min(s.max_trust, 2 * trust)
             _pairs(prob, theta, k, s, runs)
         else:
             trust *= 0.5                  # rejected: the trial's runs stay in the pool and inform B along d
             if log is not None:
                 log(f"  step rejected (chi2 {at @ at:.1f}); trust region halved")
     theta_hat = np.clip(theta + d, prob.lower, prob.upper) if converged else theta
-    return MapFit(theta=theta_hat, cov=cov, B=B, info=info, chi2=float(a @ a), n=len(a), rho=float(np.mean(rhos)),
-                  evaluations=len(runs), iterations=len(history), converged=converged, history=history,
-                  centre_runs=list(C))
+    reps = np.concatenate([C, _centre(prob, theta, k + 1, s, runs)])
+    cov, facs = _sandwich(info, noise, keep, lam, B, _scale(prob), reps, s.centre_runs, prob.groups)
+    history.append({"noise_factors": facs})
+    return MapFit(theta=theta_hat, cov=cov, B=B, info=info, chi2=float(a @ a), n=len(a),
+                  rho=float(np.mean(rhos)),
+                  evaluations=len(runs), iterations=len(history) - 1, converged=converged, history=history,
+                  centre_runs=list(reps))

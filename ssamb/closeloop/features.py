@@ -153,14 +153,26 @@ def _stack(layout: Layout, ch: dict, seg: slice) -> np.ndarray:
     return np.stack([np.asarray(ch[v], float)[seg] for v in layout.views])
 
 
-def _band_cov(Y: np.ndarray, usable: np.ndarray, n_bands: int = 32, min_bins: int = 24) -> np.ndarray:
-    """Per bin, the band average of ``Y[:, k] Y[:, k]^H`` over the usable bins of its band."""
+def _band_cov(Y: np.ndarray, usable: np.ndarray, n_bands: int = 32, min_bins: int = 24,
+              outlier: float = 15.0) -> np.ndarray:
+    r"""Per bin, the band average of ``Y[:, k] Y[:, k]^H`` over the usable bins of its band.
+
+    A bin whose power in any row exceeds ``outlier`` times that row's median power in the band
+    is left out: the average is of noise, and a line the excitation lacks (an unbalance), or its
+    leakage, would otherwise raise the floor around itself and hide from its own test (the
+    power of a noise bin is exponential: 15 medians are 10.4 means, exceeded with probability
+    3e-5).
+    """
     nv, nb = Y.shape
     C = np.zeros((nb, nv, nv), complex)
+    P = np.abs(Y) ** 2
     for a, b in _bands(usable, n_bands, min_bins):
         sel = np.flatnonzero(usable[a:b]) + a
         if len(sel) < 2:
             sel = np.arange(a, b)
+        med = np.median(P[:, sel], axis=1, keepdims=True)
+        keep = sel[np.all(P[:, sel] <= outlier * np.maximum(med, 1e-300), axis=0)]
+        sel = keep if len(keep) >= max(2, len(sel) // 2) else sel
         Z = Y[:, sel]
         C[a:b] = (Z @ Z.conj().T) / len(sel)
     return C
@@ -183,6 +195,7 @@ def _period_factors(layout: Layout, x: np.ndarray, diag_bins: np.ndarray, diag_d
     P = fr.n // fr.n_period
     if P < 6 or len(layout.bins) < 5:
         return np.ones(nv), np.ones(nv)
+    x = x - _line_components(fr, x, layout.lines_hz)      # a line off the grid spreads over periods
     per = x.reshape(nv, P, fr.n_period)
     Yp = np.fft.rfft(per, axis=2)[:, :, layout.bins // P]           # V x P x K
     s2 = P * np.sum(np.abs(Yp - Yp.mean(axis=1, keepdims=True)) ** 2, axis=1) / (P - 1)
@@ -195,7 +208,7 @@ def _period_factors(layout: Layout, x: np.ndarray, diag_bins: np.ndarray, diag_d
 
 
 def scale_views(f: "Features", fac_bins: np.ndarray, fac_dc: np.ndarray) -> "Features":
-    """The features with their noise covariances scaled per view (``C -> D C D``,
+    r"""The features with their noise covariances scaled per view (``C -> D C D``,
     :math:`D = \mathrm{diag}\sqrt{\mathrm{fac}}`; lines take the bins' factors)."""
     import dataclasses
 
@@ -229,6 +242,20 @@ def replicate_factors(fs: list) -> tuple[np.ndarray, np.ndarray]:
     pred_dc = np.mean([np.diag(f.cov_dc) for f in fs], axis=0)
     fac_dc = np.maximum(D.var(axis=0, ddof=1) / np.maximum(pred_dc, 1e-300), fac)
     return fac, fac_dc
+
+
+def _line_components(frame: Frame, x: np.ndarray, lines_hz) -> np.ndarray:
+    """The sinusoids of the off-grid lines in the rows of ``x`` (time domain; on-grid lines are
+    synchronous with the period and left alone)."""
+    out = np.zeros_like(x)
+    t = frame.t_s
+    for f, A in zip(lines_hz, line_phasors(frame, x, lines_hz)):
+        k = f / frame.df_hz
+        if frame.periodic and abs(k - round(k)) < 1e-9:
+            continue
+        w = 2 * np.pi * f * t
+        out += (2.0 / frame.n) * (A.real[:, None] * np.cos(w) - A.imag[:, None] * np.sin(w))
+    return out
 
 
 def line_phasors(frame: Frame, x: np.ndarray, lines_hz) -> np.ndarray:
@@ -266,32 +293,52 @@ def _desync(frame: Frame, x: np.ndarray) -> np.ndarray:
     return (r - r.mean(axis=0)).ravel()
 
 
-def features(layout: Layout, ch: dict, floor=None, factors: tuple | None = None) -> Features:
+def features(layout: Layout, ch: dict, floor=None, factors: tuple | None = None, noise: bool = True) -> Features:
     """Features of the views ``ch`` (whole-record arrays) over ``layout``.
 
     ``floor`` (per view of ``layout.views``, in the view's unit) is the smallest white noise
     level assumed per sample: a channel logged without noise, or a model that reproduces itself
     to round-off, would otherwise get an infinite weight. It is added to every covariance.
     ``factors`` (``(bins, dc)`` per view) replace the period-to-period factors of a periodic
-    frame (e.g. those of a longer segment of the same record).
+    frame (e.g. those of a longer segment of the same record). ``noise=False`` computes the
+    values only (covariances empty): what a fit's replays need, whose whitener is fixed.
     """
     fr = layout.frame
     seg = slice(fr.i0, fr.i0 + fr.n)
     x = _stack(layout, ch, seg)
     fl2 = np.zeros(len(layout.views)) if floor is None else np.asarray(floor, float) ** 2
+    if not noise:
+        return _values(layout, x, seg)
     if fr.periodic:
         return _periodic(layout, x, fl2, factors)
     return _welch(layout, x, seg, fl2)
 
 
+def _values(layout: Layout, x: np.ndarray, seg: slice) -> Features:
+    """The feature values of :func:`_periodic` or :func:`_welch`, without their noise."""
+    fr = layout.frame
+    empty = np.zeros((0,))
+    lines = line_phasors(fr, x, layout.lines_hz)
+    if fr.periodic:
+        X = np.fft.rfft(x, axis=1)
+        return Features(np.real(X[:, 0]), X[:, layout.bins].T, lines, empty, empty, empty)
+    nper, kb = layout.nperseg, layout.bins
+    Y = _welch_segments(x, nper)[:, :, kb]
+    Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
+    F = np.einsum("svk,sak->akv", Y, Sa.conj()) / Y.shape[0]
+    return Features(x.sum(axis=1), F, lines, empty, empty, empty)
+
+
 def _periodic(layout: Layout, x: np.ndarray, fl2: np.ndarray, factors: tuple | None) -> Features:
     fr = layout.frame
     X = np.fft.rfft(x, axis=1)
+    # the noise is read without the lines the excitation lacks (their leakage is not noise)
+    Xn = np.fft.rfft(x - _line_components(fr, x, layout.lines_hz), axis=1) if layout.lines_hz else X
     usable = fr.noise_mask.copy()
     usable[0] = False
-    C = _band_cov(X, usable)
+    C = _band_cov(Xn, usable)
     low = np.flatnonzero(usable)[: max(3, min(8, fr.n // fr.n_period - 1))]
-    Z = X[:, low]
+    Z = Xn[:, low]
     cov_dc = np.real(Z @ Z.conj().T) / max(len(low), 1)
     kl = [min(int(round(f / fr.df_hz)), X.shape[1] - 1) for f in layout.lines_hz]
     f = Features(dc=np.real(X[:, 0]), bins=X[:, layout.bins].T, lines=line_phasors(fr, x, layout.lines_hz),

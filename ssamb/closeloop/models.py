@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["EffectModel", "effect_model", "restart", "combine", "split_fit", "report_entries"]
+__all__ = ["EffectModel", "effect_model", "restart", "combine", "report_entries"]
 
 
 @dataclass(frozen=True)
@@ -42,19 +42,7 @@ class EffectModel:
     build : callable
         ``theta -> list of effect specs`` for :func:`ssamb.sim.simulate`.
     fixed : dict
-        Parameters held fixed (the unbalance speed).
-    smooth : bool
-        False when the cost is not differentiable at its minimum (then a bounded scalar
-        search replaces Gauss-Newton; one parameter only).
-    moments : callable, optional
-        ``(views, slice) -> vector`` of features that are linear in the parameter (the first
-        estimate is taken from them).
-    grid : tuple, optional
-        Per parameter, ``None`` or an array of values (theta units) for a global scan when the
-        local fit leaves the residual far above the noise (:func:`ssamb.closeloop.fit.fit_effect`).
-        The sensor parameters have one: where the self-sensing estimator's residual gate
-        rejects windows (current-step excitation), the replay of the self-sensed axis is a
-        discontinuous function of them, and a local fit can stop in a ripple of the cost.
+        What the parameterisation holds fixed (the axes of a sensor effect).
     """
 
     name: str
@@ -65,9 +53,6 @@ class EffectModel:
     upper: np.ndarray
     build: Callable
     fixed: dict
-    smooth: bool = True
-    moments: Callable | None = None
-    grid: tuple | None = None
 
 
 def effect_model(name: str, hints: dict, excited_axes: tuple) -> EffectModel:
@@ -79,23 +64,16 @@ def effect_model(name: str, hints: dict, excited_axes: tuple) -> EffectModel:
         axes = tuple(a for a in ("x", "y") if a in excited_axes or a in axes)
     if name == "sensor_delay":
         th = np.array([max(float(hints.get("delay_" + a, 0.0)), 0.0) for a in axes])
-        step = np.maximum(0.2 * th, 2e-6)
-        # scan: 1 us steps over 0-150 us (further when the evidence points further)
-        grid = tuple(np.linspace(0.0, hi, int(round(hi / max(1e-6, hi / 400))) + 1)
-                     for hi in (max(150e-6, 1.5 * v) for v in th))
-        return EffectModel(name, tuple(f"delay_{a}_s" for a in axes), th, step, np.zeros(len(axes)),
-                           np.full(len(axes), 2.4e-3),
+        return EffectModel(name, tuple(f"delay_{a}_s" for a in axes), th, np.maximum(0.2 * th, 5e-6),
+                           np.zeros(len(axes)), np.full(len(axes), 2.4e-3),
                            lambda t: [{"name": "sensor_delay", "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
-                           {"axes": axes}, grid=grid)
+                           {"axes": axes})
     if name == "sensor_gain":
         th = np.array([float(hints.get("gain_" + a, 1.0)) - 1.0 for a in axes])
-        step = np.maximum(0.2 * np.abs(th), 5e-3)
-        # scan: steps of 0.005 over gain 0.7-1.3 (further when the evidence points further)
-        grid = tuple(np.arange(min(-0.3, 1.5 * v), max(0.3, 1.5 * v) + 1e-9, 0.005) for v in th)
-        return EffectModel(name, tuple(f"gain_{a}_minus_1" for a in axes), th, step, np.full(len(axes), -0.9),
-                           np.full(len(axes), 9.0),
+        return EffectModel(name, tuple(f"gain_{a}_minus_1" for a in axes), th, np.maximum(0.2 * np.abs(th), 1e-2),
+                           np.full(len(axes), -0.9), np.full(len(axes), 9.0),
                            lambda t: [{"name": "sensor_gain", "axis": a, "gain": float(1.0 + v)} for a, v in zip(axes, t)],
-                           {"axes": axes}, grid=grid)
+                           {"axes": axes})
     if name == "static_load":
         def build(t, axes=axes):
             f = dict(zip(axes, (float(v) for v in t)))
@@ -115,13 +93,10 @@ def effect_model(name: str, hints: dict, excited_axes: tuple) -> EffectModel:
         df = float(hints.get("speed_step_hz", 0.01))
         return EffectModel(name, ("me_cos_kgm", "me_sin_kgm", "speed_hz"), np.array([0.0, 0.0, f_hz]),
                            np.array([s, s, df]), np.array([-1.0, -1.0, max(f_hz - 5 * df, 0.0)]),
-                           np.array([1.0, 1.0, f_hz + 5 * df]), build, {"speed_hz": f_hz, "null_start": True})
+                           np.array([1.0, 1.0, f_hz + 5 * df]), build, {"speed_hz": f_hz})
     if name == "amplifier_deadtime":
-        def moments(v, sl):
-            return np.array([np.mean(v["c_x"][sl]), np.mean(v["c_y"][sl])])
-        return EffectModel(name, ("deadtime_s",), np.zeros(1), np.full(1, 5e-7), np.zeros(1), np.full(1, 9.9e-6),
-                           lambda t: [{"name": "amplifier_deadtime", "deadtime_s": float(t[0])}], {},
-                           smooth=False, moments=moments)
+        return EffectModel(name, ("deadtime_s",), np.zeros(1), np.full(1, 2.5e-7), np.zeros(1), np.full(1, 9.9e-6),
+                           lambda t: [{"name": "amplifier_deadtime", "deadtime_s": float(t[0])}], {})
     if name == "cross_coupling":
         return EffectModel(name, ("coefficient",), np.zeros(1), np.full(1, 0.03), np.full(1, -0.5), np.full(1, 0.5),
                            lambda t: [{"name": "cross_coupling", "coefficient": float(t[0])}], {})
@@ -132,8 +107,7 @@ def restart(model: EffectModel, theta: np.ndarray) -> EffectModel:
     """The same parameterisation started at ``theta`` (to refit with other effects present)."""
     import dataclasses
 
-    return dataclasses.replace(model, theta0=np.asarray(theta, float).copy(), fixed={**model.fixed, "null_start": False},
-                               grid=None)
+    return dataclasses.replace(model, theta0=np.asarray(theta, float).copy())
 
 
 def combine(models: list) -> EffectModel:
@@ -148,26 +122,7 @@ def combine(models: list) -> EffectModel:
     return EffectModel("+".join(m.name for m in models), tuple(f"{m.name}.{p}" for m in models for p in m.params),
                        np.concatenate([m.theta0 for m in models]), np.concatenate([m.step for m in models]),
                        np.concatenate([m.lower for m in models]), np.concatenate([m.upper for m in models]),
-                       build, {"null_start": all(bool(np.all(m.theta0 == 0) or m.fixed.get("null_start")) for m in models)},
-                       smooth=all(m.smooth for m in models),
-                       grid=(tuple(g for m in models for g in (m.grid or (None,) * len(m.params)))
-                             if any(m.grid for m in models) else None))
-
-
-def split_fit(fr, models: list) -> list:
-    """The per-effect :class:`~ssamb.closeloop.fit.FitResult` of a joint fit (shared cost)."""
-    import dataclasses
-
-    if len(models) == 1:
-        return [fr]
-    out, a = [], 0
-    for m in models:
-        b = a + len(m.params)
-        th = fr.theta[a:b]
-        out.append(dataclasses.replace(fr, model=m, theta=th, se=fr.se[a:b], identifiable=fr.identifiable[a:b],
-                                       effects=m.build(th)))
-        a = b
-    return out
+                       build, {})
 
 
 def _merge_axes(name: str, key: str, axes: tuple, vals: np.ndarray, ses: np.ndarray, offset: float = 0.0) -> list[dict]:

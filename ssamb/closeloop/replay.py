@@ -49,11 +49,11 @@ class Replayer:
     record: Record
     n_sims: int = 0
     wall_s: float = 0.0
-    cache_size: int = 64
+    cache_size: int = 32
     _cache: dict = field(default_factory=dict, repr=False)
 
     def run(self, effects: Iterable[Mapping] = (), n: int | None = None, overrides: Mapping | None = None,
-            seed: int | None = None) -> dict:
+            seed: int | None = None, cache: bool = True) -> dict:
         """Model channels (:data:`CHANNELS`) for the first ``n`` samples (default: all).
 
         Parameters
@@ -66,6 +66,8 @@ class Replayer:
             Dotted config keys and values (calibrated parameters).
         seed : int, optional
             Seed of the converter noise (default: the config's).
+        cache : bool
+            Keep the result (an estimator's design runs are never asked for twice).
         """
         from ..acquisition import apply_acquisition
         from ..config import apply_overrides
@@ -89,6 +91,8 @@ class Replayer:
         logged = apply_acquisition({c: res.data[c] for c in CHANNELS}, self.record.acquisition, self.record.fs_hz)
         out = {c: np.asarray(logged[c], float) for c in CHANNELS}
         out["delevitated"] = res.meta.get("delevitation_s") is not None
+        if not cache:
+            return out
         self._cache[key] = out
         while len(self._cache) > self.cache_size:
             self._cache.pop(next(iter(self._cache)))

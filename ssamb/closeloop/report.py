@@ -3,44 +3,37 @@
 Binding keys: ``effects`` (ordered by how much each explains, most first; each with ``name``,
 ``params``, ``error_reduction``, ``evidence``), ``unexplained``, ``error_before``,
 ``error_after`` (held-out errors of ``x_meas``, ``y_meas``, ``y_ss`` and ``currents``, each
-``rms`` and ``fit_pct``) and ``validation.fit_fraction``. Added keys: per-effect
-``uncertainty`` and ``fit``; ``remaining_signature`` (what is left when the residual is not
-consistent with noise), ``evidence`` (the ranking before any fitting), ``rounds`` (every
-candidate tried and why it was accepted or rejected), ``noise``, ``data``, ``timing``.
+``rms`` and ``fit_pct``), ``validation.fit_fraction``, ``parameters`` (calibrated nominal
+parameters the data identify, keyed by dotted config key: ``value``, ``se``, ``nominal``,
+``relative_change``, ``identifiable``) and ``not_identifiable`` (key -> reason). Added keys:
+per-effect ``uncertainty`` and ``fit``; ``calibration`` (every calibratable parameter's
+estimate, tolerance and verdict, the sensitivity matrix's rank, condition and identified
+combinations, the error the calibration alone removes); ``remaining_signature`` (what is left
+when the residual is not consistent with noise), ``evidence`` (the ranking before any fitting),
+``rounds`` (every candidate tried and why it was accepted or rejected), ``noise``, ``data``,
+``timing``.
+
+The errors are time-domain errors of the **predictions** (the mean of the replays:
+:meth:`ssamb.closeloop.comparison.Comparison.prediction`), so a residual at the noise is the
+rig's own noise plus a fraction ``1/replay_seeds`` of the model's.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from ..io import plain
+from .calibration import findings
 from .data import VIEWS, views
-from .residual import channel_errors
+from .residual import channel_errors, compute_features
 
-__all__ = ["build_report"]
-
-
-def _clean(o):
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _clean(o.tolist())
-    if isinstance(o, np.generic):
-        return _clean(o.item())
-    if isinstance(o, complex):
-        return {"abs": abs(o), "angle_rad": math.atan2(o.imag, o.real)}
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
+__all__ = ["build_report", "findings_text"]
 
 
 def _error_reduction(meas_v, models_v, hold, sigma0) -> list[float]:
-    """Per accepted effect: the share of the nominal held-out residual excess it removed.
+    """Per step of a model sequence: the share of the first model's held-out residual excess removed.
 
-    For every view clearly above the noise in the nominal replay (mean square over twice the
-    noise power), ``(ms_before - ms_after) / (ms_nominal - sigma^2)``, averaged over those views.
+    For every view clearly above the noise in the first model (mean square over twice the noise
+    power), ``(ms_before - ms_after) / (ms_first - sigma^2)``, averaged over those views.
     """
     ms = [{v: float(np.mean((meas_v[v][hold] - m[v][hold]) ** 2)) for v in VIEWS} for m in models_v]
     above = [v for v in VIEWS if ms[0][v] > 2 * sigma0[v] ** 2]
@@ -59,78 +52,61 @@ def _remaining(failures: list, limit: int = 12) -> dict:
     by = {}
     for f in failures:
         by.setdefault(f["test"], []).append(f)
-    out = {}
-    for test, lst in by.items():
-        key = {"offset": lambda f: -abs(f["z"]), "residual_at_excited_lines": lambda f: f["p"],
-               "line_not_excited": lambda f: -max(f["amplitude"].values()), "ripple_distortion": lambda f: f["p"],
-               "whiteness": lambda f: f["p"]}[test]
-        out[test] = sorted(lst, key=key)[:limit]
+    key = {"offset": lambda f: -abs(f["z"]), "residual_at_excited_lines": lambda f: f["p"],
+           "line_not_excited": lambda f: -max(f["amplitude"].values())}
+    return {test: sorted(lst, key=key.get(test, lambda f: 0))[:limit] for test, lst in by.items()}
+
+
+def _calibration(search, sigma, meas_v, hold, nominal_v) -> dict:
+    """The ``calibration`` block and the binding ``parameters`` / ``not_identifiable``."""
+    cal = search.calibration
+    joint, ident = search.joint.get("fit"), search.joint.get("ident")
+    specs = cal.specs
+    if not specs:
+        return {"parameters": [], "rank": 0}, {}, {}
+    theta = joint.theta[: len(specs)] if joint is not None else cal.theta
+    params, not_ident = findings(specs, theta, ident)
+    per = []
+    for s, t in zip(specs, theta):
+        d = ident["per_parameter"][s.key]
+        scale = abs(s.nominal) if s.relative else 1.0
+        per.append({"key": s.key, "nominal": s.nominal, "value": s.value(float(t)), "se": d["se"] * scale,
+                    "tolerance": s.prior_sd * scale, "relative": s.relative, "identified": d["identified"],
+                    "z_from_nominal": float(t / s.prior_sd), "se_alone": d["se_alone"] * scale,
+                    "partner": d["partner"], "correlation": d["correlation"], "reason": d["reason"],
+                    "conflict": s.key in cal.conflicts})
+    red = _error_reduction(meas_v, [nominal_v, views(search.calibrated)], hold, sigma)[0]
+    block = {"parameters": per, "rank": ident["rank"], "n_parameters": ident["n_parameters"],
+             "condition": ident["condition"], "singular_values": ident["singular_values"],
+             "combinations": ident["combinations"], "conflicts": cal.conflicts, "error_reduction": red,
+             "simulations": cal.fit.evaluations if cal.fit else 0,
+             "converged": bool(cal.fit.converged) if cal.fit else True}
+    return block, params, not_ident
+
+
+def _effects(search, sigma, meas_v, hold) -> list:
+    models = [views(search.calibrated)] + [views(a["pred"]) for a in search.accepted]
+    red = _error_reduction(meas_v, models, hold, sigma)
+    ident = search.joint.get("ident") or {"per_parameter": {}}
+    out = []
+    for a, r in zip(search.accepted, red):
+        m = a["model"]
+        idf = {p: ident["per_parameter"].get(f"{m.name}.{p}", {}).get("identified", True) for p in m.params}
+        for e in a["entries"]:
+            out.append({"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {}),
+                        "error_reduction": r, "evidence": a["evidence"].to_json(),
+                        "fit": {"parameters": dict(zip(m.params, np.asarray(a["theta"]).tolist())),
+                                "standard_errors": dict(zip(m.params, np.asarray(a["se"]).tolist())),
+                                "identifiable": idf, "holdout_z": a["holdout"]["z"],
+                                "explained_at_acceptance": a["holdout"]["explained"],
+                                "delta_bic": a["holdout"]["delta_bic"], "round": a["round"],
+                                "without_signature": a["without_signature"]},
+                        **{k: v for k, v in e.items() if k not in ("name", "params", "uncertainty")}})
+    out.sort(key=lambda e: -e["error_reduction"])
     return out
 
 
-def build_report(rec, split, nominal: dict, search, settings, source: str, timing: dict) -> dict:
-    """The ``closeloop.json`` dictionary."""
-    meas_v = views(rec.channels)
-    hold = split.hold
-    # noise levels from the final residual: effects inflate the floor of the nominal residual
-    # (their intermodulation lines fill the off-grid bins), the final residual is the cleanest
-    ft_n = search.final_features or search.nominal_features
-    sig0 = ft_n.sigma if ft_n is not None else {v: 0.0 for v in VIEWS}
-    sig_ch = ft_n.sigma_ch if ft_n is not None else {}
-    models = [views(nominal)] + [views(a["model"]) for a in search.accepted]
-    red = _error_reduction(meas_v, models, hold, sig0)
-    effects = []
-    for a, r in zip(search.accepted, red):
-        fr = a["fit"]
-        for e in a["entries"]:
-            effects.append({
-                "name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {}),
-                "error_reduction": r,
-                "evidence": a["evidence"].to_json(),
-                "fit": {"parameters": dict(zip(fr.model.params, fr.theta.tolist())),
-                        "standard_errors": dict(zip(fr.model.params, fr.se.tolist())),
-                        "identifiable": dict(zip(fr.model.params, fr.identifiable.tolist())),
-                        "fit_cost_ratio": fr.cost / fr.cost0 if fr.cost0 > 0 else 1.0,
-                        "delta_bic": fr.delta_bic, "holdout_z": a["holdout"]["z"],
-                        "explained_at_acceptance": a["holdout"]["explained"], "simulations": fr.sims,
-                        "round": a["round"],
-                        "without_signature": bool(search.rounds[a["round"]].get("fallback"))},
-                **{k: v for k, v in e.items() if k not in ("name", "params", "uncertainty")},
-            })
-    effects.sort(key=lambda e: -e["error_reduction"])
-
-    def errs(model):
-        ce = channel_errors(rec.channels, model, hold, sig_ch or None)
-        for c, d in ce.items():
-            if "noise_rms" in d:
-                d["above_noise"] = bool(d["rms"] > 2 * d["noise_rms"])
-        return ce
-
-    fs = rec.fs_hz
-    rep = {
-        "effects": effects,
-        "unexplained": not search.consistent,
-        "error_before": errs(nominal),
-        "error_after": errs(search.final),
-        "validation": {
-            "fit_fraction": split.fit_fraction,
-            "fit_s": [split.i0 / fs, split.i_fit / fs], "holdout_s": [split.i_fit / fs, split.i_end / fs],
-            "discarded_s": split.i0 / fs, "whole_periods": split.n_period is not None,
-            "period_s": None if split.n_period is None else split.n_period / fs,
-            "errors_on": "held-out part",
-        },
-        "consistent_with_noise": search.consistent,
-        "remaining_signature": _remaining(search.failures) if not search.consistent else {},
-        "evidence": search.rounds[0]["evidence"] if search.rounds else {},
-        "ranking": search.rounds[0]["ranking"] if search.rounds else [],
-        "rounds": [{"round": r["round"], "ranking": r["ranking"], "candidates": r["candidates"],
-                    "without_signature": bool(r.get("fallback"))} for r in search.rounds],
-        "noise": {"views": sig0, "channels": sig_ch},
-        "data": {"source": source, "duration_s": rec.duration_s, "fs_hz": fs, "excitation": rec.excitation,
-                 "excited_axes": list(rec.excited_axes), "start": rec.start},
-        "timing": timing,
-        "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
-    }
+def _notes(rec, effects, cal_block, not_ident) -> list:
     notes = []
     for ax in ("x", "y"):
         if ax not in rec.excited_axes:
@@ -139,18 +115,108 @@ def build_report(rec, split, nominal: dict, search, settings, source: str, timin
         if e["fit"]["without_signature"]:
             notes.append(f"{e['name']}: no signature was significant before fitting (round {e['fit']['round']}); "
                          "it was found by fitting each library effect and rests on the held-out error alone")
-        for p, ok in e["fit"]["identifiable"].items():
-            if not ok:
-                notes.append(f"{e['name']}: parameter {p} is not identifiable from these data (no sensitivity)")
-    rep["notes"] = notes
-    if rep["unexplained"] and not effects:
-        rep["summary"] = "no library effect explains the residual; it is not consistent with noise (see remaining_signature)"
-    elif rep["unexplained"]:
-        rep["summary"] = (f"found {', '.join(e['name'] for e in effects)}; a residual that no library effect explains remains "
-                          "(see remaining_signature)")
-    elif effects:
-        rep["summary"] = f"found {', '.join(e['name'] for e in effects)}; the held-out residual is consistent with noise"
-    else:
-        rep["summary"] = "no effect beyond noise: the nominal model explains the data"
-    return _clean(rep)
+    for p in cal_block.get("parameters", []):
+        if p["identified"] and abs(p["z_from_nominal"]) > 3:
+            notes.append(f"{p['key']}: {p['value']:.6g} lies {abs(p['z_from_nominal']):.1f} tolerances from its nominal "
+                         f"value {p['nominal']:.6g}: outside the stated tolerance")
+    return notes
 
+
+def _summary(effects, unexplained, params) -> str:
+    cal = (f"calibrated {len(params)} nominal parameter{'s' if len(params) != 1 else ''}"
+           if params else "no nominal parameter identified")
+    if unexplained and not effects:
+        return f"{cal}; no library effect explains the residual; it is not consistent with noise (see remaining_signature)"
+    if unexplained:
+        return (f"{cal}; found {', '.join(e['name'] for e in effects)}; a residual that no library effect explains "
+                "remains (see remaining_signature)")
+    if effects:
+        return f"{cal}; found {', '.join(e['name'] for e in effects)}; the held-out residual is consistent with noise"
+    return f"{cal}; no effect beyond noise: the calibrated model explains the data"
+
+
+def build_report(rec, split, search, settings, source: str, timing: dict) -> dict:
+    """The ``closeloop.json`` dictionary."""
+    meas_v = views(rec.channels)
+    hold = split.hold
+    ft = compute_features(rec, _hold_frame(rec, split), meas_v, views(search.final), settings,
+                          rec.channels, search.final, lines=False)
+    sigma, sig_ch = ft.sigma, ft.sigma_ch
+    cal_block, params, not_ident = _calibration(search, sigma, meas_v, hold, views(search.nominal))
+    effects = _effects(search, sigma, meas_v, hold)
+
+    def errs(model):
+        ce = channel_errors(rec.channels, model, hold, sig_ch or None)
+        for d in ce.values():
+            if "noise_rms" in d:
+                d["above_noise"] = bool(d["rms"] > 2 * d["noise_rms"])
+        return ce
+
+    fs = rec.fs_hz
+    rep = {
+        "effects": effects, "unexplained": not search.consistent,
+        "error_before": errs(search.nominal), "error_after": errs(search.final),
+        "error_calibrated": errs(search.calibrated),
+        "parameters": params, "not_identifiable": not_ident, "calibration": cal_block,
+        "validation": {"fit_fraction": split.fit_fraction, "fit_s": [split.i0 / fs, split.i_fit / fs],
+                       "holdout_s": [split.i_fit / fs, split.i_end / fs], "discarded_s": split.i0 / fs,
+                       "whole_periods": split.n_period is not None,
+                       "period_s": None if split.n_period is None else split.n_period / fs,
+                       "errors_on": "held-out part"},
+        "consistent_with_noise": search.consistent,
+        "remaining_signature": _remaining(search.failures) if not search.consistent else {},
+        "evidence": search.rounds[0]["evidence"] if search.rounds else {},
+        "ranking": search.rounds[0]["ranking"] if search.rounds else [],
+        "rounds": [{"round": r["round"], "ranking": r["ranking"], "candidates": r["candidates"],
+                    "without_signature": bool(r.get("fallback"))} for r in search.rounds],
+        "final_model": {"overrides": search.overrides, "effects": search.effects},
+        "noise": {"views": sigma, "channels": sig_ch},
+        "data": {"source": source, "duration_s": rec.duration_s, "fs_hz": fs, "excitation": rec.excitation,
+                 "excited_axes": list(rec.excited_axes), "start": rec.start, "acquisition": rec.acquisition},
+        "timing": timing,
+        "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
+    }
+    rep["notes"] = _notes(rec, effects, cal_block, not_ident)
+    rep["summary"] = _summary(effects, rep["unexplained"], params)
+    return plain(rep)
+
+
+def _hold_frame(rec, split):
+    from .spectra import make_frame
+
+    return make_frame(rec.fs_hz, split.i_fit, split.i_end - split.i_fit, rec.signal, split.n_period, rec.lines_hz)
+
+
+
+_UNITS = (("_s_per_m", "S/m"), ("_ohm", "ohm"), ("_kg", "kg"), ("_hz", "Hz"), ("_m", "m"), ("_a", "A"), ("_v", "V"),
+          ("_s", "s"))
+
+
+def _unit(key: str) -> str:
+    leaf = key.split(".")[-1]
+    return next((u for suf, u in _UNITS if leaf.endswith(suf)), "")
+
+
+def findings_text(rep: dict) -> list[str]:
+    """The findings of a ``closeloop.json``, one line each (the command line prints them).
+
+    ``table1.mass_kg = 4.05 +- 0.01 kg (model 3.86 kg, +4.9 %)``; the parameters the data cannot
+    identify, with the reason; the effects with their parameters; the held-out error before
+    and after.
+    """
+    out = [f"summary: {rep['summary']}"]
+    for key, p in rep.get("parameters", {}).items():
+        u = _unit(key)
+        rel = f", {100 * p['relative_change']:+.2f} %" if p.get("relative_change") is not None else ""
+        out.append(f"parameter {key} = {p['value']:.6g} +- {p['se']:.2g} {u} (model {p['nominal']:.6g} {u}{rel})")
+    for key, why in rep.get("not_identifiable", {}).items():
+        out.append(f"not identifiable {key}: {why}")
+    for e in rep.get("effects", []):
+        unc = e.get("uncertainty", {})
+        par = ", ".join(f"{k} = {v:.4g}" + (f" +- {unc[k]:.2g}" if isinstance(unc.get(k), float) else "")
+                        if isinstance(v, float) else f"{k} = {v}" for k, v in e["params"].items())
+        out.append(f"effect {e['name']}: {par} (removes {100 * e['error_reduction']:.0f} % of the residual excess)")
+    for c in ("x_meas", "y_meas", "y_ss", "currents"):
+        b, a = rep["error_before"][c], rep["error_after"][c]
+        out.append(f"held-out rms error {c}: {b['rms']:.3g} -> {a['rms']:.3g} (noise {a.get('noise_rms', float('nan')):.3g})")
+    return out

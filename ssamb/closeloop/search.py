@@ -1,29 +1,28 @@
-r"""Greedy search: add library effects while the held-out error drops significantly.
+r"""The search: calibrate the model's own parameters, then add library effects while they explain
+held-out data, then refit everything jointly.
 
-Round :math:`r` (base model = nominal model + the effects accepted so far):
-
-1. features of the base residual on the fitting part, evidence of every library effect,
-   candidates ranked by evidence (:mod:`ssamb.closeloop.signatures`); when no signature is
-   significant but the held-out residual is not noise, each library effect that needs no hint
-   from a signature is a candidate (a signature can drown in a noisy estimate while the
-   time-domain residual is plain; pairs are not tried then);
-2. the best-ranked ``candidates_per_round`` are fitted by simulation on the fitting part
-   (:func:`ssamb.closeloop.fit.fit_effect`) and simulated over the whole record;
-3. a candidate passes when, on the held-out part, the improvement test is significant
-   (:math:`z > z_{1-\alpha}`), it explains at least ``min_explained`` of the residual excess
-   of the views that stood above the noise, it makes no view worse, the BIC drops, and its
-   own signature is gone from the residual (its claim statistic falls below the evidence
-   threshold or to 1 % of its value: an effect that explains only part of a feature, like an
-   unbalance fitted to a force in one axis, fails);
-4. when no candidate passes: a candidate that improved the held-out error but failed only on
-   side effects is refitted together with the effects already accepted (those were fitted
-   without it and are biased by it); then the leading pairs of smooth candidates are fitted
-   jointly (two effects can hide each other: each biases the other's fit alone);
-5. the passing candidate (or pair) with the largest held-out improvement is accepted, and all
-   accepted effects are polished (each refitted once with the others present).
-
-The search stops when no candidate passes, ``max_effects`` are in, or the held-out residual is
-consistent with noise (:func:`ssamb.closeloop.residual.consistency`).
+1. **Calibration** (:func:`ssamb.closeloop.calibration.calibrate_model`): the nominal
+   parameters, MAP on the fitting part's features. A parameter driven beyond ``conflict_z``
+   tolerances conflicts with its stated tolerance -- usually an effect the model lacks, which the
+   parameter absorbs (a sensor gain error in the self-sensing calibration gain) -- and the effect
+   search starts with it at its nominal value.
+2. **Rounds** (base = calibrated model + the effects accepted so far): the features of the base
+   residual (:mod:`ssamb.closeloop.residual`), the evidence of every library effect
+   (:mod:`ssamb.closeloop.signatures`), the held-out consistency test (:func:`consistency`). The
+   best-ranked ``candidates_per_round`` with significant evidence are fitted on the base
+   (:func:`ssamb.closeloop.fit.fit_candidate`) and judged on the held-out part: the improvement
+   test :math:`z > z_{1-\alpha}` (``alpha_accept``), at least ``min_explained`` of the residual
+   excess explained, no view made worse, the BIC drops, and the effect's own signature is gone
+   from the residual. When no single candidate passes, the leading pairs are fitted jointly (two
+   effects can hide each other). When no signature is significant yet the held-out residual is not
+   noise, every library effect that needs no hint from a signature is fitted and judged the same
+   way (the report says so). The passing candidate with the largest held-out improvement joins
+   the base. The search stops when the held-out residual is consistent with noise, no candidate
+   passes, or ``max_effects`` are in.
+3. **Joint refit**: the calibrated parameters and the accepted effects' parameters together,
+   from their current values (an effect absorbs what a parameter took before it was found; the
+   parameters' priors decide how shared signatures split), and the identifiability of all of
+   them.
 """
 from __future__ import annotations
 
@@ -34,39 +33,58 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from .calibration import Calibration, calibrate_model, identifiability, overrides_of
+from .comparison import Comparison
 from .data import views
-from .fit import fit_effect, holdout_score
-from .models import combine, effect_model, report_entries, restart, split_fit
-from .residual import compute_features, consistency
+from .estimate import EstimateSettings, Problem, map_fit
+from .fit import Base, Candidate, fit_candidate, holdout_score
+from .models import effect_model, report_entries, restart
+from .residual import compute_features
 from .signatures import claim_stat, evidence_all, rank
 
-__all__ = ["SearchResult", "greedy_search"]
+__all__ = ["SearchResult", "search", "consistency"]
 
 
 @dataclass
 class SearchResult:
-    """Outcome of the greedy search.
+    """Outcome of the search.
 
     Attributes
     ----------
+    calibration : Calibration
+        The nominal parameters calibrated before the effect search.
     accepted : list of dict
-        Per accepted effect: the fit, the held-out score, the evidence, the report entries.
+        Per accepted effect: name, model, parameters, standard errors, held-out score, evidence,
+        report entries, round.
     rounds : list of dict
-        Per round: the evidence table and every candidate tried, with its verdict.
+        Per round: the evidence table, the ranking and every candidate tried with its verdict.
+    joint : dict
+        The final joint refit: parameters (calibration and effects), covariance, identifiability.
     effects : list
         Effect specs of the final model.
-    final : dict
-        Channels of the final model over the whole record.
+    overrides : dict
+        Calibrated parameter values of the final model (dotted keys).
+    nominal, calibrated, final : dict
+        Predicted channels over the whole record: nominal model, calibrated model (no effect),
+        final model.
+    consistent : bool
+    failures : list
+        What the held-out residual of the final model fails (when not consistent with noise).
     """
 
+    calibration: Calibration = None
     accepted: list = field(default_factory=list)
     rounds: list = field(default_factory=list)
+    joint: dict = field(default_factory=dict)
     effects: list = field(default_factory=list)
-    final: dict = field(default_factory=dict)
-    final_features: object = None
-    nominal_features: object = None
+    overrides: dict = field(default_factory=dict)
+    nominal: dict = field(default_factory=dict, repr=False)
+    calibrated: dict = field(default_factory=dict, repr=False)
+    final: dict = field(default_factory=dict, repr=False)
     consistent: bool = False
     failures: list = field(default_factory=list)
+    final_features: object = None
+    nominal_features: object = None
 
 
 def _log(progress: bool, msg: str) -> None:
@@ -75,198 +93,231 @@ def _log(progress: bool, msg: str) -> None:
         sys.stderr.flush()
 
 
-def _significant(fr) -> np.ndarray:
-    """Parameters that differ from zero: by 3 standard errors, and by 1e-3 of their natural
-    scale (the finite-difference step; standard errors of a long record can be far below any
-    practical difference)."""
-    return (np.abs(fr.theta) > 3 * fr.se) & (np.abs(fr.theta) > 1e-3 * fr.model.step)
+def consistency(cmp: Comparison, base: Base, settings) -> tuple[bool, list]:
+    """Is the held-out residual of ``base`` consistent with noise? ``(ok, failures)``.
+
+    Three families at level ``alpha_noise / 3`` each (Bonferroni inside): the DC entries of the
+    views (offsets, :math:`|z|`), the per-view :math:`\\chi^2` of the excited lines and line
+    features, and lines the excitation lacks found in the held-out residual
+    (:func:`ssamb.closeloop.residual.compute_features`). The whitened residual is rescaled by the
+    noise the prediction's replicates show.
+    """
+    part = cmp.hold
+    f = cmp.noise_factors(part, base.overrides, base.effects)
+    r = cmp.residual(part, base.pred) / np.sqrt(f)
+    fam = settings.alpha_noise / 3.0
+    groups = part.whitener.groups()
+    fails = []
+    dc = r[groups["dc"]]
+    zc = stats.norm.isf(fam / (2 * len(dc)))
+    for v, z in zip(part.layout.views, dc):
+        if abs(z) > zc:
+            fails.append({"test": "offset", "view": v, "z": float(z)})
+    dc_idx = set(groups["dc"].tolist())
+    for v in part.layout.views:
+        g = [i for i in groups["view:" + v] if i not in dc_idx]
+        x = float(np.sum(r[g] ** 2))
+        p = float(stats.chi2.sf(x, len(g))) if g else 1.0
+        if p < fam / len(part.layout.views):
+            fails.append({"test": "residual_at_excited_lines", "view": v, "chi2": x, "k": len(g), "p": p})
+    ft = compute_features(cmp.record, part.frame, views(cmp.record.channels), views(base.pred), settings)
+    for ln in ft.lines:
+        fails.append({"test": "line_not_excited", "f_hz": ln["f_hz"], "views": ln["views_detected"],
+                      "amplitude": {v: abs(a) for v, a in ln["phasor"].items()}})
+    return (not fails), fails
 
 
-def _refit_accepted(acc_fits: list, extra_effects: list, replay, meas_v, split, sigma, settings) -> list:
-    """Refit each accepted effect (one pass) with the others and ``extra_effects`` present."""
-    fits = list(acc_fits)
-    for j, f in enumerate(fits):
-        others = [e for k, g in enumerate(fits) if k != j for e in g.effects] + list(extra_effects)
-        base = views(replay.run(others + f.effects, n=split.fit.stop))
-        new = fit_effect(replay, others, restart(f.model, f.theta), meas_v, base, split.fit, sigma,
-                         settings.max_gn_iterations)
-        if new.cost <= new.cost0:
-            new.cost0 = f.cost0
-            fits[j] = new
-    return fits
-
-
-def _polish(out: SearchResult, replay, meas_v, split, sigma, settings, progress):
-    """Refit each accepted effect with the others fixed at their current values (one pass).
-
-    An effect fitted before the next one was found is biased by it; one coordinate pass removes
-    most of that bias. Returns the new base model (channels, views)."""
-    for j, acc in enumerate(out.accepted):
-        others = [e for k, a in enumerate(out.accepted) if k != j for e in a["fit"].effects]
-        fr_old = acc["fit"]
-        base_ch = replay.run(others + fr_old.effects, n=split.fit.stop)
-        model = restart(fr_old.model, fr_old.theta)
-        fr = fit_effect(replay, others, model, meas_v, views(base_ch), split.fit, sigma, settings.max_gn_iterations)
-        if fr.cost <= fr_old.cost * (1 + 1e-9) or fr.cost < fr.cost0:
-            fr.cost0 = fr_old.cost0
-            sig = _significant(fr)
-            acc["fit"] = fr
-            acc["entries"] = report_entries(fr.model, fr.theta, fr.se, sig)
-            _log(progress, f"  polish {acc['name']}: {dict(zip(fr.model.params, fr.theta.tolist()))} ({fr.sims} sims)")
-    out.effects = [e for a in out.accepted for e in a["fit"].effects]
-    final = replay.run(out.effects)
-    out.accepted[-1]["model"] = final
-    return final, views(final)
-
-
-def greedy_search(rec, split, replay, nominal: dict, fit_frame, hold_frame, settings, progress: bool = False) -> SearchResult:
-    """Run the greedy search (see module docstring)."""
-    meas_v = views(rec.channels)
-    base_ch = nominal
-    base_v = views(base_ch)
-    out = SearchResult()
+def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings, measured_contact: bool) -> None:
+    """Score a fitted candidate on the held-out part and write its verdict (``cand.reasons``)."""
+    if cand.fit is None:
+        return
+    p = len(cand.model.params)
+    hs = holdout_score(cmp, base, cand.pred, list(base.effects) + cand.effects, p)
+    cand.score = hs
     z_crit = float(stats.norm.isf(settings.alpha_accept))
+    if hs["z"] <= z_crit:
+        cand.reasons.append(f"held-out improvement not significant (z = {hs['z']:.2f} <= {z_crit:.2f})")
+    need = settings.min_explained * len(cand.names)
+    if hs["explained"] < need:
+        cand.reasons.append(f"explains {100 * hs['explained']:.0f} % of the residual excess (< {100 * need:.0f} %)")
+    if hs["views_worse"]:
+        cand.reasons.append(f"makes {', '.join(hs['views_worse'])} worse")
+    if hs["delta_bic"] >= 0:
+        cand.reasons.append(f"BIC does not drop ({hs['delta_bic']:.1f})")
+    ft_after = compute_features(cmp.record, cmp.fit.frame, views(cmp.record.channels), views(cand.pred), settings)
     claim_crit = float(stats.chi2.isf(settings.alpha_evidence, 2))
-    rejected: dict[str, int] = {}
-    # a candidate whose model touches the backup bearing is implausible unless the measured
-    # rotor did too (radial measured position within 5 % of the clearance)
-    clearance = float(replay.cfg["table1"]["backup_clearance_m"])
-    measured_contact = bool(np.max(np.hypot(rec.channels["x_meas"], rec.channels["y_meas"])) >= 0.95 * clearance)
+    cand.score["claims"] = {}
+    for n in cand.names:
+        before = claim_stat(n, ft, ev[n].hints, cmp.fit.frame.df_hz)
+        after = claim_stat(n, ft_after, ev[n].hints, cmp.fit.frame.df_hz)
+        cand.score["claims"][n] = (before, after)
+        if after > max(claim_crit, settings.claim_residual * before):
+            cand.reasons.append(f"the signature of {n} remains after the fit (claim chi2 {before:.3g} -> {after:.3g})")
+    if cand.pred.get("delevitated") and not measured_contact:
+        cand.reasons.append("the model with it delevitates (the measured rotor does not)")
+
+
+def _entry(cand: Candidate, rnd: int, repolish: bool = False) -> dict:
+    fit = cand.fit
+    hs = cand.score
+    return {"name": "+".join(cand.names), "round": rnd,
+            "theta": dict(zip(cand.model.params, fit.theta.tolist())) if fit else {},
+            "se": dict(zip(cand.model.params, fit.se.tolist())) if fit else {},
+            "sims": fit.evaluations if fit else 0, "iterations": fit.iterations if fit else 0,
+            "holdout_z": hs.get("z"), "explained": hs.get("explained", 0.0), "views_worse": hs.get("views_worse", []),
+            "delta_bic": hs.get("delta_bic"), "claims": hs.get("claims", {}), "passed": cand.passed,
+            "reasons": list(cand.reasons)}
+
+
+def _round(cmp, base, settings, rnd, rejected):
+    """One round: evidence, candidates fitted and judged. Returns ``(info, best or None, ft, ev)``."""
+    rec = cmp.record
+    ft = compute_features(rec, cmp.fit.frame, views(rec.channels), views(base.pred), settings)
+    ev = evidence_all(ft, settings.alpha_evidence)
+    taken = {e["name"] for e in base.effects}
+    order = [n for n in rank(ev) if n not in taken and rejected.get(n, 0) < 2]
+    info = {"round": rnd, "evidence": {n: e.to_json() for n, e in ev.items()}, "ranking": rank(ev), "candidates": []}
+    return info, order, ft, ev
+
+
+def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, progress) -> Candidate:
+    t1 = time.perf_counter()
+    models = [effect_model(n, ev[n].hints, rec.excited_axes) for n in names]
+    cand = fit_candidate(cmp, base, models, est, seed0)
+    _judge(cand, cmp, base, ev, ft, settings, measured_contact)
+    th = dict(zip(cand.model.params, cand.fit.theta.tolist())) if cand.fit else {}
+    _log(progress, f"  {'+'.join(names)}: {th} -> held-out z {cand.score.get('z', float('nan')):.1f}, explained "
+                   f"{100 * cand.score.get('explained', 0.0):.0f} %, {'passes' if cand.passed else '; '.join(cand.reasons)} "
+                   f"({cand.fit.evaluations if cand.fit else 0} sims, {time.perf_counter() - t1:.1f} s)")
+    return cand
+
+
+def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_contact, rejected, progress):
+    """Fit the round's candidates (singles, then pairs); return the passing ones."""
+    rec = cmp.record
+    passing = []
+    fallback = bool(info.get("fallback"))
+    singles = order if fallback else order[: settings.candidates_per_round]
+    for k, name in enumerate(singles):
+        cand = _try(cmp, base, [name], ev, rec, settings, est, 10_000 * (rnd + 1) + 100 * k, ft, measured_contact,
+                    progress)
+        info["candidates"].append(_entry(cand, rnd))
+        if cand.passed:
+            passing.append(cand)
+        else:
+            rejected[name] = rejected.get(name, 0) + 1
+    if not passing and len(singles) >= 2 and not fallback:
+        top = singles[: settings.candidates_per_round]
+        for i in range(len(top)):
+            for j in range(i + 1, len(top)):
+                cand = _try(cmp, base, [top[i], top[j]], ev, rec, settings, est,
+                            10_000 * (rnd + 1) + 5000 + 100 * (i * 10 + j), ft, measured_contact, progress)
+                info["candidates"].append(_entry(cand, rnd))
+                if cand.passed:
+                    passing.append(cand)
+    return passing
+
+
+def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult, measured_contact: bool,
+                   progress: bool) -> Base:
+    rejected: dict = {}
     for rnd in range(settings.max_effects + 1):
         t0 = time.perf_counter()
-        ft = compute_features(rec, fit_frame, meas_v, base_v, settings)
-        ev = evidence_all(ft, settings.alpha_evidence)
-        order = [n for n in rank(ev) if n not in {a["name"] for a in out.accepted} and rejected.get(n, 0) < 2]
-        info = {"round": rnd, "evidence": {n: e.to_json() for n, e in ev.items()}, "ranking": rank(ev),
-                "candidates": []}
+        info, order, ft, ev = _round(cmp, base, settings, rnd, rejected)
         out.rounds.append(info)
-        hold_ft = compute_features(rec, hold_frame, meas_v, base_v, settings, rec.channels, base_ch)
-        ok, fails = consistency(hold_ft, settings.alpha_noise)
-        out.consistent, out.failures, out.final_features = ok, fails, hold_ft
-        if rnd == 0:
-            out.nominal_features = hold_ft
-        _log(progress, f"round {rnd}: evidence ranking {rank(ev) or 'none'}; held-out residual "
+        ok, fails = consistency(cmp, base, settings)
+        out.consistent, out.failures = ok, fails
+        _log(progress, f"round {rnd}: evidence ranking {info['ranking'] or 'none'}; held-out residual "
                        f"{'consistent with noise' if ok else 'not consistent with noise'} ({time.perf_counter() - t0:.1f} s)")
-        if not order and not ok and rnd < settings.max_effects:
-            # no signature stands out, yet the held-out residual is not noise (a signature can
-            # drown, e.g. a y-sensor delay under current pulses, whose ratio estimate is
-            # imprecise): fit the library effects that need no hint from a signature (not the
-            # unbalance, whose speed comes from a line), most evidence first, judged by the
-            # same held-out criteria
-            taken = {a["name"] for a in out.accepted}
+        if ok or rnd == settings.max_effects:
+            break
+        if not order:
+            taken = {e["name"] for e in base.effects}
             order = [n for n in sorted(ev, key=lambda n: ev[n].log10_p)
                      if n != "unbalance" and n not in taken and rejected.get(n, 0) == 0]
             info["fallback"] = bool(order)
             _log(progress, f"round {rnd}: no significant signature; fitting each of {order}")
-        if (ok and rnd > 0) or not order or rnd == settings.max_effects:
+        if not order:
             break
-        sigma = ft.sigma
-
-        def attempt(names, repolish=False):
-            """Fit ``names`` jointly (one effect, or a pair) and judge the result.
-
-            With ``repolish`` the effects already accepted are refitted with the candidate
-            present (they were fitted without it, and are biased by it), then the candidate again.
-            """
-            t1 = time.perf_counter()
-            models = [effect_model(n, ev[n].hints, rec.excited_axes) for n in names]
-            model = combine(models)
-            fr = fit_effect(replay, out.effects, model, meas_v, base_v, split.fit, sigma, settings.max_gn_iterations)
-            acc_fits = [a["fit"] for a in out.accepted]
-            if repolish and acc_fits:
-                acc_fits = _refit_accepted(acc_fits, fr.effects, replay, meas_v, split, sigma, settings)
-                acc_eff = [e for f in acc_fits for e in f.effects]
-                pre = views(replay.run(acc_eff, n=split.fit.stop))
-                fr2 = fit_effect(replay, acc_eff, restart(model, fr.theta), meas_v, pre, split.fit, sigma,
-                                 settings.max_gn_iterations)
-                fr2.sims += fr.sims
-                fr2.cost0 = fr.cost0
-                fr = fr2
-            acc_eff = [e for f in acc_fits for e in f.effects]
-            cand_ch = replay.run(acc_eff + fr.effects)
-            cand_v = views(cand_ch)
-            hs = holdout_score(meas_v, base_v, cand_v, split.hold, sigma)
-            ft_after = compute_features(rec, fit_frame, meas_v, cand_v, settings)
-            reasons = []
-            if hs["z"] <= z_crit:
-                reasons.append(f"held-out improvement not significant (z = {hs['z']:.2f} <= {z_crit:.2f})")
-            if hs["explained"] < settings.min_explained * len(names):
-                reasons.append(f"explains {100 * hs['explained']:.0f} % of the residual excess "
-                               f"(< {100 * settings.min_explained * len(names):.0f} %)")
-            if hs["views_worse"]:
-                reasons.append(f"makes {', '.join(hs['views_worse'])} worse")
-            if fr.delta_bic >= 0:
-                reasons.append(f"BIC does not drop ({fr.delta_bic:.1f})")
-            claims = {}
-            for n in names:
-                c_before = claim_stat(n, ft, ev[n].hints, fit_frame.df_hz)
-                c_after = claim_stat(n, ft_after, ev[n].hints, fit_frame.df_hz)
-                claims[n] = (c_before, c_after)
-                if c_after > max(claim_crit, 0.01 * c_before):
-                    reasons.append(f"the signature of {n} remains after the fit (claim chi2 {c_before:.3g} -> {c_after:.3g})")
-            if cand_ch.get("delevitated") and not measured_contact:
-                reasons.append("the model with it delevitates (the measured rotor does not)")
-            entry = {"name": "+".join(names) + (" (accepted effects refitted)" if repolish else ""),
-                     "theta": dict(zip(fr.model.params, fr.theta.tolist())),
-                     "se": dict(zip(fr.model.params, fr.se.tolist())), "sims": fr.sims, "iterations": fr.iterations,
-                     "fit_cost_ratio": fr.cost / fr.cost0 if fr.cost0 > 0 else 1.0, "delta_bic": fr.delta_bic,
-                     "holdout_z": hs["z"], "explained": hs["explained"], "views_worse": hs["views_worse"],
-                     "claims": claims, "passed": not reasons, "reasons": reasons}
-            info["candidates"].append(entry)
-            _log(progress, f"  {entry['name']}: {entry['theta']} -> held-out z {hs['z']:.1f}, explained "
-                           f"{100 * hs['explained']:.0f} %, {'passes' if not reasons else '; '.join(reasons)} "
-                           f"({fr.sims} sims, {time.perf_counter() - t1:.1f} s)")
-            if reasons:
-                return None, reasons
-            return (hs["delta_sse"], names, fr, models, cand_ch, cand_v, hs, acc_fits), []
-
-        results = []
-        retry = []
-        fallback = bool(info.get("fallback"))
-        for name in (order if fallback else order[: settings.candidates_per_round]):
-            r, why = attempt([name])
-            if r is not None:
-                results.append(r)
-            else:
-                rejected[name] = rejected.get(name, 0) + 1
-                # a significant improvement that fails only on side effects may be the accepted
-                # effects' bias: retry with them refitted
-                if out.accepted and all(w.startswith(("makes", "the signature")) for w in why):
-                    retry.append(name)
-        if not results:
-            for name in retry:
-                r, _ = attempt([name], repolish=True)
-                if r is not None:
-                    results.append(r)
-        if not results and len(order) >= 2 and not fallback:
-            # no single effect explains its signature: two effects may hide each other (each
-            # biases the other's fit); fit the leading pairs jointly
-            smooth = [n for n in order[: settings.candidates_per_round]
-                      if effect_model(n, ev[n].hints, rec.excited_axes).smooth]
-            for i in range(len(smooth)):
-                for j in range(i + 1, len(smooth)):
-                    r, _ = attempt([smooth[i], smooth[j]])
-                    if r is not None:
-                        results.append(r)
-        if not results:
+        passing = _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_contact, rejected, progress)
+        if not passing:
             break
-        results.sort(key=lambda x: -x[0])
-        _, names, fr, models, cand_ch, cand_v, hs, acc_fits = results[0]
-        for a, f in zip(out.accepted, acc_fits):
-            if f is not a["fit"]:
-                a["fit"] = f
-                a["entries"] = report_entries(f.model, f.theta, f.se, _significant(f))
-        out.effects = [e for a in out.accepted for e in a["fit"].effects]
-        parts = split_fit(fr, models)
-        for k, (n, frk) in enumerate(zip(names, parts)):
-            sig = _significant(frk)
-            model_ch = cand_ch if k == len(names) - 1 else replay.run(out.effects + [e for f in parts[:k + 1] for e in f.effects])
-            out.accepted.append({"name": n, "fit": frk, "holdout": hs, "evidence": ev[n],
-                                 "entries": report_entries(frk.model, frk.theta, frk.se, sig), "round": rnd,
-                                 "model": model_ch})
-        out.effects = out.effects + fr.effects
-        base_ch, base_v = cand_ch, cand_v
-        if len(out.accepted) > 1 and len(names) == 1:
-            base_ch, base_v = _polish(out, replay, meas_v, split, sigma, settings, progress)
-    out.final = base_ch
+        best = max(passing, key=lambda c: c.score["delta_chi2"])
+        for sl, m in zip(best.slices(), best.models):
+            th = best.fit.theta[sl]
+            se = best.fit.se[sl]
+            out.accepted.append({"name": m.name, "model": m, "theta": th, "se": se, "holdout": best.score,
+                                 "evidence": ev[m.name], "round": rnd, "pred": best.pred,
+                                 "without_signature": bool(info.get("fallback"))})
+        base = Base(base.overrides, list(base.effects) + best.effects, best.pred)
+    return base
+
+
+def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, progress: bool):
+    """Joint refit of the calibrated parameters and the accepted effects' parameters."""
+    specs = cal.specs
+    models = [restart(a["model"], a["theta"]) for a in accepted]
+    p_cal = len(specs)
+    sizes = [len(m.params) for m in models]
+    cuts = np.cumsum([p_cal] + sizes)
+    names = tuple(s.key for s in specs) + tuple(f"{m.name}.{p}" for m in models for p in m.params)
+    from .calibration import calibration_problem
+
+    cp = calibration_problem(specs, None, max_step_rel=settings.calibration_step_rel)
+
+    def build(theta):
+        eff = [e for m, a, b in zip(models, cuts[:-1], cuts[1:]) for e in m.build(theta[a:b])]
+        return overrides_of(specs, theta[:p_cal]), eff
+    start = np.concatenate([cal.theta] + [m.theta0 for m in models])
+    prob = Problem(names=names, theta0=np.concatenate([np.zeros(p_cal)] + [m.theta0 for m in models]),
+                   prior_sd=np.concatenate([cp.prior_sd] + [np.full(n, np.inf) for n in sizes]),
+                   step=np.concatenate([cp.step] + [m.step for m in models]),
+                   lower=np.concatenate([cp.lower] + [m.lower for m in models]),
+                   upper=np.concatenate([cp.upper] + [m.upper for m in models]),
+                   evaluate=cmp.evaluator(cmp.fit, build), start=start, seed0=900_000, groups=cmp.groups(cmp.fit))
+    fit = map_fit(prob, est, (lambda m: _log(progress, "  joint " + m)) if progress else None)
+    ident = identifiability(fit.info, prob.prior_sd, names, settings.identifiable_ratio, cov=fit.cov)
+    ov, eff = build(fit.theta)
+    return fit, ident, ov, eff, models, cuts
+
+
+def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> SearchResult:
+    """Calibrate, search effects, refit jointly (module docstring)."""
+    out = SearchResult()
+    est = EstimateSettings(**settings.estimate)
+    rec = cmp.record
+    clearance = float(cmp.replay.cfg["table1"]["backup_clearance_m"])
+    measured_contact = bool(np.max(np.hypot(rec.channels["x_meas"], rec.channels["y_meas"])) >= 0.95 * clearance)
+    out.nominal = cmp.prediction()
+    t0 = time.perf_counter()
+    cal = calibrate_model(cmp, specs, [], est, settings.identifiable_ratio, settings.conflict_z,
+                          log=(lambda m: _log(progress, "  calibration " + m)) if progress else None)
+    out.calibration = cal
+    _log(progress, f"calibration: {sum(d['identified'] for d in cal.ident['per_parameter'].values())} of {len(specs)} "
+                   f"parameters identified; conflicts {cal.conflicts or 'none'} ({time.perf_counter() - t0:.1f} s)")
+    base_ov = cal.overrides(reset_conflicts=True)
+    out.calibrated = cmp.prediction(cal.overrides())
+    base = Base(base_ov, [], cmp.prediction(base_ov))
+    base = _effect_search(cmp, base, settings, est, out, measured_contact, progress)
+    if out.accepted or cal.conflicts:
+        fit, ident, ov, eff, models, cuts = _joint(cmp, cal, out.accepted, settings, est, progress)
+        for a, m, lo, hi in zip(out.accepted, models, cuts[:-1], cuts[1:]):
+            a["theta"], a["se"] = fit.theta[lo:hi], fit.se[lo:hi]
+        out.joint = {"fit": fit, "ident": ident, "names": fit_names(cal, models)}
+        out.overrides, out.effects = ov, eff
+        out.final = cmp.prediction(ov, eff)
+        ok, fails = consistency(cmp, Base(ov, eff, out.final), settings)
+        out.consistent, out.failures = ok, fails
+    else:
+        out.overrides, out.effects, out.final = cal.overrides(), [], out.calibrated
+        out.joint = {"fit": cal.fit, "ident": cal.ident, "names": [s.key for s in specs]}
+    for a in out.accepted:
+        sig = (np.abs(a["theta"]) > 3 * a["se"]) & (np.abs(a["theta"]) > 1e-3 * a["model"].step)
+        a["entries"] = report_entries(a["model"], a["theta"], a["se"], sig)
     return out
+
+
+def fit_names(cal: Calibration, models: list) -> list:
+    """Names of the joint refit's parameters: dotted config keys, then ``effect.param``."""
+    return [s.key for s in cal.specs] + [f"{m.name}.{p}" for m in models for p in m.params]
+

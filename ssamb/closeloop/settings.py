@@ -10,7 +10,16 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Mapping
 
-__all__ = ["Settings", "settings_from_config"]
+__all__ = ["Settings", "settings_from_config", "DEFAULT_CALIBRATION"]
+
+#: the nominal parameters a rig never matches exactly, with their tolerances (config.yaml gives
+#: the reasons); used when a config has no ``closeloop.calibration``
+DEFAULT_CALIBRATION = {
+    "table1.mass_kg": 0.03, "table1.airgap_m": 0.03, "table1.i_bias_a": 0.03, "table1.coil_turns": 0.03,
+    "table1.r_coil_ohm": 0.05, "magnetics.iron_conductivity_s_per_m": 0.1, "table1.mu_r": 0.2,
+    "table1.v_supply_v": 0.03, "sensors.x_bandwidth_hz": 0.1, "selfsensing.calibration_gain_error": 0.03,
+    "selfsensing.calibration_offset_error_m": 1.0e-5,
+}
 
 
 @dataclass(frozen=True)
@@ -46,8 +55,6 @@ class Settings:
         Upper frequency of the search for lines the excitation does not contain.
     ripple_min_hz : float
         Lower frequency of the band in which current-ripple distortion is looked for.
-    max_gn_iterations : int
-        Gauss-Newton iterations per fit (each costs one simulation of the fitting part).
     ljung_box_lags : int
         Lags of the Ljung-Box whiteness test.
     floor_position_m, floor_current_a : float
@@ -57,6 +64,28 @@ class Settings:
         Smallest noise level relative to a channel's signal rms (model reproducibility: a
         deterministic residual below it is not evidence; data stored in single precision carry
         ~1e-7, the simulator's own changes ~1e-9).
+    replay_seeds : int
+        Replays (distinct converter-noise seeds) averaged into a prediction: the model's expected
+        response, its own noise divided by this number (a replay is one realisation of the loop's
+        noise, as the rig's record is another).
+    calibration : dict
+        Calibratable nominal parameters: dotted config key -> prior tolerance (standard
+        deviation; relative to the nominal value, absolute in the key's unit when the nominal
+        value is 0). Empty: no calibration.
+    calibration_step_rel : float
+        Largest finite-difference step of a relative parameter (a wider tolerance reaches where
+        the response is no longer linear).
+    identifiable_ratio : float
+        A parameter counts as identified when the data shrink its tolerance to at most this
+        fraction (posterior standard deviation over the prior's).
+    conflict_z : float
+        A calibrated parameter further than this many tolerances from nominal conflicts with its
+        stated tolerance; the effect search starts with it at its nominal value.
+    claim_residual : float
+        An accepted effect must leave at most this fraction of its own signature's statistic
+        (or less than the evidence threshold) in the residual.
+    estimate : dict
+        Settings of the estimator (:class:`ssamb.closeloop.estimate.EstimateSettings`).
     """
 
     fit_fraction: float = 0.7
@@ -71,14 +100,26 @@ class Settings:
     candidates_per_round: int = 3
     line_search_max_hz: float = 2000.0
     ripple_min_hz: float = 2000.0
-    max_gn_iterations: int = 6
     ljung_box_lags: int = 30
     floor_position_m: float = 1e-10
     floor_current_a: float = 1e-6
     floor_relative: float = 1e-5
+    replay_seeds: int = 8
+    calibration: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_CALIBRATION))
+    calibration_step_rel: float = 0.05
+    identifiable_ratio: float = 1.0 / 3.0
+    conflict_z: float = 3.0
+    claim_residual: float = 0.01
+    estimate: dict = dataclasses.field(default_factory=dict)
 
 
 _WORKFLOW_KEYS = ("datasets", "default_dataset")
+
+
+def _err(msg: str):
+    from ..config import ConfigError
+
+    return ConfigError(msg)
 
 
 def settings_from_config(cfg: Mapping | None) -> Settings:
@@ -86,7 +127,7 @@ def settings_from_config(cfg: Mapping | None) -> Settings:
 
     Raises
     ------
-    ValueError
+    ssamb.config.ConfigError
         An unknown key (named) or a value out of range.
     """
     section = dict((cfg or {}).get("closeloop") or {})
@@ -96,16 +137,24 @@ def settings_from_config(cfg: Mapping | None) -> Settings:
         if k in _WORKFLOW_KEYS:
             continue
         if k not in known:
-            raise ValueError(f"config key 'closeloop.{k}': unknown (known: {', '.join(sorted(known))})")
+            raise _err(f"config key 'closeloop.{k}': unknown (known: {', '.join(sorted(known))})")
         kw[k] = v
     ds = section.get("datasets") or {}
     if "default_dataset" in section and section["default_dataset"] not in ds:
-        raise ValueError(f"config key 'closeloop.default_dataset': '{section['default_dataset']}' is not in "
+        raise _err(f"config key 'closeloop.default_dataset': '{section['default_dataset']}' is not in "
                          f"closeloop.datasets (known: {', '.join(ds) or 'none'})")
     s = Settings(**kw)
     if not 0.1 <= s.fit_fraction <= 0.95:
-        raise ValueError(f"config key 'closeloop.fit_fraction': must be in [0.1, 0.95] (got {s.fit_fraction})")
+        raise _err(f"config key 'closeloop.fit_fraction': must be in [0.1, 0.95] (got {s.fit_fraction})")
     for name in ("alpha_evidence", "alpha_accept", "alpha_noise"):
         if not 0 < getattr(s, name) < 0.5:
-            raise ValueError(f"config key 'closeloop.{name}': must be in (0, 0.5)")
+            raise _err(f"config key 'closeloop.{name}': must be in (0, 0.5)")
+    if int(s.replay_seeds) < 1:
+        raise _err("config key 'closeloop.replay_seeds': must be >= 1")
+    from .estimate import EstimateSettings
+
+    known_est = {f.name for f in dataclasses.fields(EstimateSettings)}
+    for k in s.estimate:
+        if k not in known_est:
+            raise _err(f"config key 'closeloop.estimate.{k}': unknown (known: {', '.join(sorted(known_est))})")
     return s

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from ..io import plain
 from .residual import Features
 
 __all__ = ["Evidence", "SIGNATURES", "LIBRARY", "evidence_all", "rank", "claim_stat"]
@@ -83,21 +84,7 @@ class Evidence:
 
     def to_json(self) -> dict:
         return {"score_chi2": self.score, "log10_p": self.log10_p, "significant": self.significant,
-                "signature": SIGNATURES[self.name], "hints": _plain(self.hints), "details": _plain(self.details)}
-
-
-def _plain(o):
-    if isinstance(o, dict):
-        return {k: _plain(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_plain(v) for v in o]
-    if isinstance(o, complex):
-        return {"abs": abs(o), "angle_rad": math.atan2(o.imag, o.real)}
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None if math.isnan(o) else (1e308 if o > 0 else -1e308)
-    return o
+                "signature": SIGNATURES[self.name], "hints": plain(self.hints), "details": plain(self.details)}
 
 
 def _log10_norm2(z: float) -> float:
@@ -229,7 +216,10 @@ def _unbalance(ft: Features, alpha: float) -> Evidence:
         return Evidence("unbalance", 0.0, 0.0, False, {}, det)
     sc, ln, cmin = best
     lp = -0.5 * cmin / math.log(10.0) + math.log10(max(len(ft.lines), 1))    # chi2(2): sf = exp(-x/2)
-    return Evidence("unbalance", sc, lp, lp < math.log10(alpha), {"speed_hz": ln["f_hz"]}, det)
+    # the speed's finite-difference step: a tenth of the frequency resolution (a phase drift of
+    # 0.6 rad over the segment)
+    return Evidence("unbalance", sc, lp, lp < math.log10(alpha),
+                    {"speed_hz": ln["f_hz"], "speed_step_hz": 0.1 * ft.frame.df_hz}, det)
 
 
 _FUNCS = {"sensor_delay": lambda ft, a: _sensor(ft, a, "tau"), "sensor_gain": lambda ft, a: _sensor(ft, a, "alpha"),

@@ -53,8 +53,9 @@ class Frame:
     grid_mask : numpy.ndarray of bool
         Periodic grid (periodic frames), else the bins with excitation power.
     line_mask : numpy.ndarray of bool
-        Bins where lines the excitation lacks are searched: off the grid (periodic frames),
-        else away from the excitation's own narrow lines (a broadband excitation excludes none).
+        Bins where lines the excitation lacks are searched: every bin but DC and the excited
+        lines (periodic frames: unexcited grid bins included), else away from the excitation's
+        own narrow lines (a broadband excitation excludes none).
     excited : dict
         Per excited axis, the bin indices of the excited lines (periodic frames).
     """
@@ -113,7 +114,13 @@ def make_frame(fs_hz: float, i0: int, n: int, excitation: dict, n_period: int | 
                 kb = np.flatnonzero(mag > 1e-6 * mag.max()) if mag.max() > 0 else np.array([], int)
                 kb = kb[kb > 0]
             excited[ax] = kb
-        return Frame(fs_hz, i0, n, window, float(n), f, True, n_period, noise, grid, excited, noise.copy())
+        # lines are searched everywhere but at DC and the excited lines: a rotating force at a
+        # harmonic of the excitation period sits on the grid (a round speed under a 1 Hz multisine)
+        line = np.ones(nb, bool)
+        line[0] = False
+        for kb in excited.values():
+            line[kb] = False
+        return Frame(fs_hz, i0, n, window, float(n), f, True, n_period, noise, grid, excited, line)
     window = signal.windows.hann(n, sym=False)
     pw = np.zeros(nb)
     for s in excitation.values():
@@ -270,6 +277,8 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         Per view, the white-equivalent noise standard deviation.
     """
     t = frame.t_s
+    if frame.periodic and abs(f0_hz / frame.df_hz - round(f0_hz / frame.df_hz)) < 1e-6 and frame.grid_mask[int(round(f0_hz / frame.df_hz))]:
+        return _grid_line(frame, segs, sigmas, int(round(f0_hz / frame.df_hz)))
     names = list(segs)
     proj = {v: _periodic_project(frame, np.asarray(e, float)) for v, e in segs.items()}
     # whitened views stacked: one matrix product per evaluation of the objective
@@ -300,6 +309,23 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         out["se"][v] = se
         out["chi2"][v] = float((a * a + b * b) / se ** 2) if se > 0 else float("inf")
         out["component"][v] = a * np.cos(2 * np.pi * fh * t) + b * np.sin(2 * np.pi * fh * t)
+    return out
+
+
+def _grid_line(frame: Frame, segs: dict, sigmas: dict, k: int) -> dict:
+    r"""A line on the periodic grid: its DFT bin is its phasor (whole periods, no leakage), and
+    nothing synchronous can be projected out of it. :math:`A_v = 2X_v(k)/n`."""
+    t = frame.t_s
+    w = 2 * np.pi * k * frame.df_hz * t
+    out = {"f_hz": float(k * frame.df_hz), "phasor": {}, "se": {}, "chi2": {}, "component": {},
+           "se_scale": math.sqrt(2.0 / frame.n), "on_grid": True}
+    for v, e in segs.items():
+        A = complex(2.0 * np.fft.rfft(np.asarray(e, float))[k] / frame.n)
+        se = sigmas[v] * out["se_scale"]
+        out["phasor"][v] = A
+        out["se"][v] = se
+        out["chi2"][v] = float(abs(A) ** 2 / se ** 2) if se > 0 else float("inf")
+        out["component"][v] = A.real * np.cos(w) - A.imag * np.sin(w)
     return out
 
 

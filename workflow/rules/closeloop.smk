@@ -8,7 +8,7 @@ CLOSELOOP_DEFAULT = CLOSELOOP.get("default_dataset")
 if CLOSELOOP_DEFAULT is not None and CLOSELOOP_DEFAULT not in CLOSELOOP_DATASETS:
     raise WorkflowError(f"config.yaml: closeloop.default_dataset '{CLOSELOOP_DEFAULT}' is not in closeloop.datasets")
 #: figures every analysis writes (sensor_ratio.png too when an axis is excited)
-CLOSELOOP_FIGURES = ["residual_time.png", "residual_spectra.png", "evidence.png", "whiteness.png"]
+CLOSELOOP_FIGURES = ["calibration.png", "features.png", "residual_time.png", "residual_spectra.png", "evidence.png"]
 
 
 def closeloop_config(wildcards):

@@ -1,0 +1,186 @@
+r"""The comparison of data and model that every fit and test of close the loop reads.
+
+A :class:`Comparison` holds, for the fitting part and the held-out part of a record, the
+feature layout (:mod:`ssamb.closeloop.features`: DC, the excited lines, the lines found in the
+residual), the measured features with their noise, and the whitener of a measured-minus-model
+difference. Its noise model:
+
+* the **data**: the off-grid covariance of the record, rescaled per view by the
+  period-to-period spread (fitting part; the held-out part, with fewer periods, takes the same
+  factors);
+* the **model**: a prediction is the mean of ``replay_seeds`` replays with distinct seeds (the
+  model's expected response); its noise is the off-grid covariance of that mean, rescaled per
+  view by the replicates' own spread at the nominal parameters
+  (:func:`~ssamb.closeloop.features.replicate_factors`).
+
+The whitener of the difference is built once, from the nominal replay: weights that do not
+move with the parameters keep the cost a fixed function of them. (Where the noise at the
+estimate differs, the estimator's sandwich covariance accounts for it:
+:func:`ssamb.closeloop.estimate.map_fit`.)
+
+Only :meth:`Comparison.prediction` and :meth:`Comparison.residual` touch the model, through
+:meth:`ssamb.closeloop.replay.Replayer.run`: parameter overrides, effects and seeds in,
+logged channels out.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .data import Record, Split, unit_of, views
+from .features import (COST_VIEWS, Features, Layout, Whitener, features, make_layout, replicate_factors,
+                        scale_views)
+from .replay import Replayer
+from .spectra import Frame, make_frame
+
+__all__ = ["Comparison", "Part"]
+
+
+@dataclass
+class Part:
+    """One segment of the record (fitting or held-out): frame, layout, data features, whitener."""
+
+    frame: Frame
+    layout: Layout
+    data: Features
+    whitener: Whitener | None = None
+    model_factors: tuple = ()
+
+    @property
+    def n_end(self) -> int:
+        """Samples a replay needs to cover this part."""
+        return self.frame.i0 + self.frame.n
+
+
+@dataclass
+class Comparison:
+    """Data and model compared on the fitting and the held-out part (module docstring).
+
+    Attributes
+    ----------
+    record : Record
+    split : Split
+    replay : Replayer
+    seeds : tuple of int
+        Seeds of the replays averaged into a prediction.
+    floor : numpy.ndarray
+        Smallest noise level per view of :data:`COST_VIEWS` (per sample).
+    fit, hold : Part
+    lines_hz : tuple
+        Line frequencies read as features.
+    """
+
+    record: Record
+    split: Split
+    replay: Replayer
+    seeds: tuple
+    floor: np.ndarray
+    fit: Part = None
+    hold: Part = None
+    lines_hz: tuple = ()
+    _nominal: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, record: Record, split: Split, replay: Replayer, seeds, floor_position_m: float,
+              floor_current_a: float) -> "Comparison":
+        """Frames of the two parts and the measured features (lines are added by :meth:`set_lines`)."""
+        floor = np.array([floor_position_m if unit_of(v) == "m" else floor_current_a for v in COST_VIEWS])
+        c = cls(record, split, replay, tuple(int(s) for s in seeds), floor)
+        fs, sig, P, lines = record.fs_hz, record.signal, split.n_period, record.lines_hz
+        fit_frame = make_frame(fs, split.i0, split.i_fit - split.i0, sig, P, lines)
+        hold_frame = make_frame(fs, split.i_fit, split.i_end - split.i_fit, sig, P, lines)
+        c.fit = Part(fit_frame, make_layout(fit_frame, sig), None)
+        c.hold = Part(hold_frame, make_layout(hold_frame, sig), None)
+        c._measure()
+        return c
+
+    def _measure(self) -> None:
+        meas = views(self.record.channels)
+        self.fit.data = features(self.fit.layout, meas, self.floor)
+        factors = self.fit.data.factors or None
+        self.hold.data = features(self.hold.layout, meas, self.floor, factors=factors)
+
+    def set_lines(self, lines_hz) -> None:
+        """Read the given line frequencies as features too (and rebuild the whiteners)."""
+        self.lines_hz = tuple(float(f) for f in lines_hz)
+        for part in (self.fit, self.hold):
+            part.layout = part.layout.with_lines(self.lines_hz)
+        self._measure()
+        if self._nominal:
+            self.calibrate_noise(**self._nominal)
+
+    # -- the model ---------------------------------------------------------------------------
+    def prediction(self, overrides=None, effects=(), n: int | None = None) -> dict:
+        """The model's expected channels: the mean of the replays with :attr:`seeds`."""
+        return self.replay.mean(effects, n, overrides, self.seeds)
+
+    def calibrate_noise(self, overrides=None, effects=()) -> None:
+        """Whiteners of both parts from the replays at ``overrides``/``effects`` (the nominal model).
+
+        The per-view factors of the replicates' spread (single replays, fitting part) scale the
+        off-grid covariance of the mean of the replays.
+        """
+        self._nominal = {"overrides": overrides, "effects": tuple(effects)}
+        runs = [views(self.replay.run(effects, None, overrides, s)) for s in self.seeds]
+        mean = {v: np.mean([r[v] for r in runs], axis=0) for v in runs[0]}
+        fac = replicate_factors([features(self.fit.layout, r) for r in runs]) if len(runs) >= 3 else None
+        ones = (np.ones(len(COST_VIEWS)), np.ones(len(COST_VIEWS)))
+        for part in (self.fit, self.hold):
+            fm = features(part.layout, mean, factors=ones)
+            if fac is not None:
+                fm = scale_views(fm, *fac)
+            part.model_factors = fac or ()
+            part.whitener = Whitener.build(part.layout, part.data, fm)
+
+    def model_features(self, part: Part, channels: dict) -> Features:
+        """Feature values of model channels (views or channels) over a part (no noise: the
+        whitener is fixed)."""
+        ch = channels if "d_x" in channels else views(channels)
+        return features(part.layout, ch, noise=False)
+
+    def residual(self, part: Part, channels: dict) -> np.ndarray:
+        """Whitened model-minus-data residual of ``channels`` over ``part``."""
+        return part.whitener.residual(self.model_features(part, channels), part.data)
+
+    def evaluator(self, part: Part, build):
+        """``(theta, seed) -> residual`` of a single replay whose overrides and effects ``build(theta)``
+        returns (``(overrides, effects)``), for :func:`ssamb.closeloop.estimate.map_fit`."""
+        def evaluate(theta, seed):
+            ov, eff = build(theta)
+            return self.residual(part, self.replay.run(eff, part.n_end, ov, seed, cache=False))
+        return evaluate
+
+    def noise_factors(self, part: Part, overrides=None, effects=()) -> np.ndarray:
+        r"""Per-entry factor of the noise of a prediction's residual over its assumed unit.
+
+        From the replays averaged into the prediction (:attr:`seeds`): the variance of their
+        whitened residuals times :math:`1 + 1/m` (the data are one more replay of the same
+        physics), pooled per group (:meth:`groups`: the median, corrected for the median of
+        :math:`\chi^2_{m-1}/(m-1)`; a one-entry group's variance itself), never below 1
+        (:func:`ssamb.closeloop.estimate._sandwich` reads replicates the same way).
+        """
+        reps = np.array([self.residual(part, self.replay.run(effects, None, overrides, s)) for s in self.seeds])
+        m = len(reps)
+        out = np.ones(reps.shape[1])
+        if m < 3:
+            return out
+        v = reps.var(axis=0, ddof=1) * (1.0 + 1.0 / m)
+        med = (1 - 2 / (9 * (m - 1))) ** 3
+        for g in self.groups(part):
+            out[g] = max(float(np.median(v[g])) / (med if len(g) > 1 else 1.0), 1.0)
+        return out
+
+    def groups(self, part: Part) -> list:
+        """Entries of the whitened residual that share a noise level: per view, its DC entry
+        (a replay's random state -- hysteresis, the current loops' integrators, intermittent duty
+        saturation -- moves DC far more than the within-record noise shows) and its other
+        entries."""
+        g = part.whitener.groups()
+        dc = set(g["dc"].tolist())
+        out = []
+        for v in COST_VIEWS:
+            idx = g.get("view:" + v, np.zeros(0, int))
+            out.append(np.array([i for i in idx if i not in dc], int))
+            out.append(np.array([i for i in idx if i in dc], int))
+        return [x for x in out if len(x)]
