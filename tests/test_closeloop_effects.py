@@ -236,7 +236,8 @@ def test_randomized_acceptance(tmp_path, cfg):
     """40 draws, every calibratable parameter perturbed uniformly by up to 5 %, one library
     effect (none in a quarter of the draws): at least 90 % pass every criterion."""
     n = int(os.environ.get("SSAMB_SUITE_DRAWS", "40"))
-    out = [run_draw(tmp_path, cfg, k, with_effect=(k % 4 != 3)) for k in range(n)]
+    k0 = int(os.environ.get("SSAMB_SUITE_START", "0"))        # to split the suite over processes
+    out = [run_draw(tmp_path, cfg, k, with_effect=(k % 4 != 3)) for k in range(k0, k0 + n)]
     rate = sum(not d["failures"] for d in out) / n
     _suite_out(tmp_path, "acceptance").write_text(json.dumps({"pass_rate": rate, "draws": out}, indent=1))
     assert rate >= 0.9, [(d["draw"], d["failures"]) for d in out if d["failures"]]
@@ -247,8 +248,9 @@ def test_randomized_false_alarms(tmp_path, cfg):
     """50 noise-only draws from the nominal model: the rate of declared effects stays at or below
     the configured significance level (alpha_accept, 1e-3: none of the 50)."""
     n = int(os.environ.get("SSAMB_SUITE_NULL_DRAWS", "50"))
+    k0 = int(os.environ.get("SSAMB_SUITE_START", "0"))
     found = []
-    for k in range(n):
+    for k in range(k0, k0 + n):
         arrays, meta, _ = rig(tmp_path, [], name=f"n{k}", exc={**EXC, "seed": 100 + k}, noise={**NOISE, "seed": 200 + k})
         found.append([e["name"] for e in analyse(arrays, meta, cfg)["effects"]])
     rate = sum(bool(f) for f in found) / n

@@ -85,7 +85,7 @@ class EstimateSettings:
     """
 
     centre_runs: int = 4
-    pair_runs: int = 2
+    pair_runs: int = 1
     max_iter: int = 8
     tol: float = 1.0
     pool_radius: float = 1.0

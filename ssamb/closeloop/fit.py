@@ -17,9 +17,9 @@ is at most standard normal when the base is right (its mean is :math:`-\|\delta\
 noiseless prediction and about 0 when :math:`\delta` is the predictions' own noise), and large
 when the candidate explains what the base missed: a one-sided test. Per view, the share of the
 residual excess over the noise (:math:`\chi^2_v - n_v`) that the candidate removes is averaged
-over the views that stood clearly above the noise (:math:`\chi^2_v > 2 n_v`); a view is made
-worse when its :math:`\chi^2` grows by more than three standard deviations of the difference of
-two noisy predictions' :math:`\chi^2` (:math:`\sqrt{12 n_v}`). The BIC change on the fitting
+over the views that stood clearly above the noise (:math:`\chi^2_v >` ``above_noise`` :math:`n_v`);
+a view is made worse when its :math:`\chi^2` grows by more than ``worse_sigma`` standard
+deviations of the difference of two noisy predictions' :math:`\chi^2` (:math:`\sqrt{12 n_v}`). The BIC change on the fitting
 part, :math:`\chi^2_1 - \chi^2_0 + p \ln N`, is the penalty for parameters.
 """
 from __future__ import annotations
@@ -87,7 +87,7 @@ def chi2_views(cmp: Comparison, part: Part, r: np.ndarray) -> dict:
     return {v: (float(np.sum(r[g["view:" + v]] ** 2)), len(g["view:" + v])) for v in COST_VIEWS if "view:" + v in g}
 
 
-def holdout_score(cmp: Comparison, base: Base, pred: dict, effects: list, n_params: int) -> dict:
+def holdout_score(cmp: Comparison, base: Base, pred: dict, effects: list, n_params: int, settings) -> dict:
     """Held-out comparison of a candidate with the base model (module docstring)."""
     r0, r1 = _scaled(cmp, cmp.hold, base, pred, effects)
     d = r1 - r0
@@ -100,9 +100,9 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, effects: list, n_para
         (x0, n), (x1, _) = c0[v], c1[v]
         frac = (x0 - x1) / (x0 - n) if x0 > n else 0.0
         per_view[v] = {"chi2_before": x0, "chi2_after": x1, "n": n, "explained": frac}
-        if x0 > 2 * n:
+        if x0 > settings.above_noise * n:
             fracs.append(frac)
-        if x1 - x0 > 3 * math.sqrt(12 * n):
+        if x1 - x0 > settings.worse_sigma * math.sqrt(12 * n):
             worse.append(v)
     f0, f1 = _scaled(cmp, cmp.fit, base, pred, effects)
     dbic = float(f1 @ f1 - f0 @ f0 + n_params * math.log(len(f0)))

@@ -60,11 +60,11 @@ def _remaining(failures: list, limit: int = 12) -> dict:
 def _calibration(search, sigma, meas_v, hold, nominal_v) -> dict:
     """The ``calibration`` block and the binding ``parameters`` / ``not_identifiable``."""
     cal = search.calibration
-    joint, ident = search.joint.get("fit"), search.joint.get("ident")
+    ident = search.joint.get("ident")
     specs = cal.specs
     if not specs:
         return {"parameters": [], "rank": 0}, {}, {}
-    theta = joint.theta[: len(specs)] if joint is not None else cal.theta
+    theta = search.joint.get("theta_cal", cal.theta)
     params, not_ident = findings(specs, theta, ident)
     per = []
     for s, t in zip(specs, theta):

@@ -413,7 +413,7 @@ def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, m
         ft.excited_residual[v] = {"chi2": chi, "k": k, "p": _gamma_p(chi / c, max(int(round(k / c)), 1)) if k else 1.0,
                                   "excess_ratio": chi / k - 1.0 if k else 0.0}
     if lines and frame.periodic and exd:
-        ft.lines.extend(_isolated_excited_lines(frame, X, Sl, exd, settings.alpha_evidence))
+        ft.lines.extend(_isolated_excited_lines(frame, X, Sl, exd, settings.alpha_evidence, settings.line_isolation))
     for ax, d in exd.items():
         # sensor over coil current; for y also the self-sensing estimate over the evaluation
         # sensor (the sensor path alone: plant changes cancel) and the evaluation sensor over
@@ -421,7 +421,8 @@ def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, m
         paths = {"x": (("x", "x_meas", "d_x"),),
                  "y": (("y", "y_ss", "d_y"), ("y_sensor", "y_ss", "y_meas"), ("y_plant", "y_meas", "d_y"))}[ax]
         for name, sv, va in paths:
-            r = _ratio_fit(d["f_hz"], d["Hm"][sv], d["Hm"][va], d["Hh"][sv], d["Hh"][va], d["var"][sv], d["var"][va])
+            r = _ratio_fit(d["f_hz"], d["Hm"][sv], d["Hm"][va], d["Hh"][sv], d["Hh"][va], d["var"][sv], d["var"][va],
+                           settings.ratio_min_snr)
             if r is not None:
                 r["axis"] = ax
                 r["path"] = f"{sv}/{va}"

@@ -132,7 +132,7 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
     if cand.fit is None:
         return
     p = len(cand.model.params)
-    hs = holdout_score(cmp, base, cand.pred, list(base.effects) + cand.effects, p)
+    hs = holdout_score(cmp, base, cand.pred, list(base.effects) + cand.effects, p, settings)
     cand.score = hs
     z_crit = float(stats.norm.isf(settings.alpha_accept))
     if hs["z"] <= z_crit:
@@ -148,8 +148,8 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
     claim_crit = float(stats.chi2.isf(settings.alpha_evidence, 2))
     cand.score["claims"] = {}
     for n in cand.names:
-        before = claim_stat(n, ft, ev[n].hints, cmp.fit.frame.df_hz)
-        after = claim_stat(n, ft_after, ev[n].hints, cmp.fit.frame.df_hz)
+        before = claim_stat(n, ft, ev[n].hints, cmp.fit.frame.df_hz, settings)
+        after = claim_stat(n, ft_after, ev[n].hints, cmp.fit.frame.df_hz, settings)
         cand.score["claims"][n] = (before, after)
         if after > max(claim_crit, settings.claim_residual * before):
             cand.reasons.append(f"the signature of {n} remains after the fit (claim chi2 {before:.3g} -> {after:.3g})")
@@ -173,7 +173,7 @@ def _round(cmp, base, settings, rnd, rejected):
     """One round: evidence, candidates fitted and judged. Returns ``(info, best or None, ft, ev)``."""
     rec = cmp.record
     ft = compute_features(rec, cmp.fit.frame, views(rec.channels), views(base.pred), settings)
-    ev = evidence_all(ft, settings.alpha_evidence)
+    ev = evidence_all(ft, settings)
     taken = {e["name"] for e in base.effects}
     order = [n for n in rank(ev) if n not in taken and rejected.get(n, 0) < 2]
     info = {"round": rnd, "evidence": {n: e.to_json() for n, e in ev.items()}, "ranking": rank(ev), "candidates": []}
@@ -254,31 +254,46 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
 
 
 def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, progress: bool):
-    """Joint refit of the calibrated parameters and the accepted effects' parameters."""
-    specs = cal.specs
-    models = [restart(a["model"], a["theta"]) for a in accepted]
-    p_cal = len(specs)
-    sizes = [len(m.params) for m in models]
-    cuts = np.cumsum([p_cal] + sizes)
-    names = tuple(s.key for s in specs) + tuple(f"{m.name}.{p}" for m in models for p in m.params)
+    """Joint refit of the accepted effects' parameters and the calibrated parameters that the
+    data identified or that conflicted with their tolerance (the others stay at their calibrated
+    values: the data say nothing more about them).
+
+    Returns the fit, the calibration vector (all parameters), the overrides and effects of the
+    final model, and the identifiability of every parameter (the refitted ones from the joint
+    fit, the others from the calibration).
+    """
     from .calibration import calibration_problem
 
-    cp = calibration_problem(specs, None, max_step_rel=settings.calibration_step_rel)
+    specs = cal.specs
+    free = [i for i, sp in enumerate(specs)
+            if cal.ident["per_parameter"][sp.key]["identified"] or sp.key in cal.conflicts]
+    models = [restart(a["model"], a["theta"]) for a in accepted]
+    sizes = [len(m.params) for m in models]
+    cuts = np.cumsum([len(free)] + sizes)
+    sub = [specs[i] for i in free]
+    names = tuple(sp.key for sp in sub) + tuple(f"{m.name}.{p}" for m in models for p in m.params)
+    cp = calibration_problem(sub, None, max_step_rel=settings.calibration_step_rel)
+    theta_cal = cal.theta.copy()
 
     def build(theta):
+        th = theta_cal.copy()
+        th[free] = theta[: len(free)]
         eff = [e for m, a, b in zip(models, cuts[:-1], cuts[1:]) for e in m.build(theta[a:b])]
-        return overrides_of(specs, theta[:p_cal]), eff
-    start = np.concatenate([cal.theta] + [m.theta0 for m in models])
-    prob = Problem(names=names, theta0=np.concatenate([np.zeros(p_cal)] + [m.theta0 for m in models]),
+        return overrides_of(specs, th), eff
+    prob = Problem(names=names, theta0=np.concatenate([np.zeros(len(free))] + [m.theta0 for m in models]),
                    prior_sd=np.concatenate([cp.prior_sd] + [np.full(n, np.inf) for n in sizes]),
                    step=np.concatenate([cp.step] + [m.step for m in models]),
                    lower=np.concatenate([cp.lower] + [m.lower for m in models]),
                    upper=np.concatenate([cp.upper] + [m.upper for m in models]),
-                   evaluate=cmp.evaluator(cmp.fit, build), start=start, seed0=900_000, groups=cmp.groups(cmp.fit))
+                   evaluate=cmp.evaluator(cmp.fit, build), start=np.concatenate([theta_cal[free]] + [m.theta0 for m in models]),
+                   seed0=900_000, groups=cmp.groups(cmp.fit))
     fit = map_fit(prob, est, (lambda m: _log(progress, "  joint " + m)) if progress else None)
     ident = identifiability(fit.info, prob.prior_sd, names, settings.identifiable_ratio, cov=fit.cov)
+    merged = dict(cal.ident)
+    merged["per_parameter"] = {**cal.ident["per_parameter"], **ident["per_parameter"]}
+    theta_cal[free] = fit.theta[: len(free)]
     ov, eff = build(fit.theta)
-    return fit, ident, ov, eff, models, cuts
+    return fit, theta_cal, ov, eff, models, cuts, merged
 
 
 def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> SearchResult:
@@ -287,7 +302,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     est = EstimateSettings(**settings.estimate)
     rec = cmp.record
     clearance = float(cmp.replay.cfg["table1"]["backup_clearance_m"])
-    measured_contact = bool(np.max(np.hypot(rec.channels["x_meas"], rec.channels["y_meas"])) >= 0.95 * clearance)
+    measured_contact = bool(np.max(np.hypot(rec.channels["x_meas"], rec.channels["y_meas"]))
+                            >= settings.contact_fraction * clearance)
     out.nominal = cmp.prediction()
     t0 = time.perf_counter()
     cal = calibrate_model(cmp, specs, [], est, settings.identifiable_ratio, settings.conflict_z,
@@ -300,24 +316,18 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     base = Base(base_ov, [], cmp.prediction(base_ov))
     base = _effect_search(cmp, base, settings, est, out, measured_contact, progress)
     if out.accepted or cal.conflicts:
-        fit, ident, ov, eff, models, cuts = _joint(cmp, cal, out.accepted, settings, est, progress)
-        for a, m, lo, hi in zip(out.accepted, models, cuts[:-1], cuts[1:]):
+        fit, theta_cal, ov, eff, models, cuts, ident = _joint(cmp, cal, out.accepted, settings, est, progress)
+        for a, lo, hi in zip(out.accepted, cuts[:-1], cuts[1:]):
             a["theta"], a["se"] = fit.theta[lo:hi], fit.se[lo:hi]
-        out.joint = {"fit": fit, "ident": ident, "names": fit_names(cal, models)}
+        out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
         out.overrides, out.effects = ov, eff
         out.final = cmp.prediction(ov, eff)
         ok, fails = consistency(cmp, Base(ov, eff, out.final), settings)
         out.consistent, out.failures = ok, fails
     else:
         out.overrides, out.effects, out.final = cal.overrides(), [], out.calibrated
-        out.joint = {"fit": cal.fit, "ident": cal.ident, "names": [s.key for s in specs]}
+        out.joint = {"fit": cal.fit, "ident": cal.ident, "theta_cal": cal.theta}
     for a in out.accepted:
         sig = (np.abs(a["theta"]) > 3 * a["se"]) & (np.abs(a["theta"]) > 1e-3 * a["model"].step)
         a["entries"] = report_entries(a["model"], a["theta"], a["se"], sig)
     return out
-
-
-def fit_names(cal: Calibration, models: list) -> list:
-    """Names of the joint refit's parameters: dotted config keys, then ``effect.param``."""
-    return [s.key for s in cal.specs] + [f"{m.name}.{p}" for m in models for p in m.params]
-

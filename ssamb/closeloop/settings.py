@@ -86,6 +86,32 @@ class Settings:
         (or less than the evidence threshold) in the residual.
     estimate : dict
         Settings of the estimator (:class:`ssamb.closeloop.estimate.EstimateSettings`).
+    whirl_phase_min_deg : float
+        Unbalance signature: the y line lags the x line by between this and 180 minus this
+        degrees (forward whirl; the x probe loop and the y self-sensing loop differ, hence the
+        width).
+    whirl_ratio_max : float
+        Unbalance signature: the y/x amplitude ratio of the line lies within ``1/r .. r``.
+    line_isolation : float
+        A line on an excited frequency (an unbalance spinning there) stands out when its
+        chi-square is this many times the median of the other excited lines, in both axes.
+    ratio_min_snr : float
+        Excited lines whose measured sensor or current response is below this amplitude
+        signal-to-noise ratio are left out of the sensor-path ratio.
+    ratio_path_min_lines, ratio_path_se_factor : int, float
+        The y sensor path is read as the self-sensing estimate over the evaluation probe when
+        it has this many lines and its delay's standard error is within this factor of the
+        path over the coil current (else the latter: current pulses barely move the rotor).
+    deadtime_ratio_max : float
+        Dead-time signature: the common-mode shifts of the two axes agree within this factor.
+    above_noise : float
+        A view stands clearly above the noise when its chi-square is this many times its entries.
+    worse_sigma : float
+        A candidate makes a view worse when its chi-square grows by more than this many standard
+        deviations of the difference of two noisy predictions' chi-square.
+    contact_fraction : float
+        The measured rotor touched the backup bearing when its radial position reached this
+        fraction of the clearance (a candidate whose model touches is then not implausible).
     """
 
     fit_fraction: float = 0.7
@@ -111,6 +137,16 @@ class Settings:
     conflict_z: float = 3.0
     claim_residual: float = 0.01
     estimate: dict = dataclasses.field(default_factory=dict)
+    whirl_phase_min_deg: float = 10.0
+    whirl_ratio_max: float = 5.0
+    line_isolation: float = 100.0
+    ratio_min_snr: float = 10.0
+    ratio_path_min_lines: int = 10
+    ratio_path_se_factor: float = 3.0
+    deadtime_ratio_max: float = 3.0
+    above_noise: float = 2.0
+    worse_sigma: float = 3.0
+    contact_fraction: float = 0.95
 
 
 _WORKFLOW_KEYS = ("datasets", "default_dataset")

@@ -97,7 +97,7 @@ def _log10_norm1(z: float) -> float:
     return float(stats.norm.logsf(z)) / math.log(10.0)
 
 
-def _ratio_path(ft: Features, axis: str) -> dict | None:
+def _ratio_path(ft: Features, axis: str, st) -> dict | None:
     """The ratio that isolates the sensor of an axis.
 
     y: the self-sensing estimate over the evaluation sensor (plant changes cancel), unless that
@@ -108,16 +108,16 @@ def _ratio_path(ft: Features, axis: str) -> dict | None:
         a, b = ft.ratios.get("y_sensor"), ft.ratios.get("y")
         if a is None or b is None:
             return a or b
-        return a if (a["n_lines"] >= 10 and a["se_tau_s"] <= 3 * b["se_tau_s"]) else b
+        return a if (a["n_lines"] >= st.ratio_path_min_lines and a["se_tau_s"] <= st.ratio_path_se_factor * b["se_tau_s"]) else b
     return ft.ratios.get("x")
 
 
-def _sensor(ft: Features, alpha: float, kind: str) -> Evidence:
+def _sensor(ft: Features, alpha: float, kind: str, st) -> Evidence:
     name = "sensor_delay" if kind == "tau" else "sensor_gain"
     axes, score, lp_min, det, hints = [], 0.0, 0.0, {}, {}
     n_tests = 2
     for ax in ("x", "y"):
-        r = _ratio_path(ft, ax)
+        r = _ratio_path(ft, ax, st)
         if r is None:
             continue
         if kind == "tau":
@@ -141,7 +141,7 @@ def _sensor(ft: Features, alpha: float, kind: str) -> Evidence:
     return Evidence(name, score, lp_min, bool(axes), hints, det)
 
 
-def _static_load(ft: Features, alpha: float) -> Evidence:
+def _static_load(ft: Features, alpha: float, st) -> Evidence:
     axes, score, lp_min, det, hints = [], 0.0, 0.0, {}, {}
     for ax in ("x", "y"):
         o = ft.offsets["d_" + ax]
@@ -158,13 +158,14 @@ def _static_load(ft: Features, alpha: float) -> Evidence:
     return Evidence("static_load", score, lp_min, bool(axes), hints, det)
 
 
-def _deadtime(ft: Features, alpha: float) -> Evidence:
+def _deadtime(ft: Features, alpha: float, st) -> Evidence:
     ox, oy = ft.offsets["c_x"], ft.offsets["c_y"]
     det = {"c_x": {"offset_a": ox["mean"], "z": ox["z"]}, "c_y": {"offset_a": oy["mean"], "z": oy["z"]}}
     if ft.ripple:
         det["ripple"] = {v: {"chi2_per_line": r["chi2"] / max(r["k"], 1), "lines": r["k"]} for v, r in ft.ripple.items()}
     same_sign = ox["z"] * oy["z"] > 0
-    similar = same_sign and 1 / 3 <= abs(ox["mean"]) / max(abs(oy["mean"]), 1e-30) <= 3
+    q = st.deadtime_ratio_max
+    similar = same_sign and 1 / q <= abs(ox["mean"]) / max(abs(oy["mean"]), 1e-30) <= q
     # both offsets must be significant: the weaker decides
     zmin = min(abs(ox["z"]), abs(oy["z"]))
     lp = _log10_norm2(zmin) + math.log10(2) if similar else 0.0
@@ -174,7 +175,7 @@ def _deadtime(ft: Features, alpha: float) -> Evidence:
     return Evidence("amplifier_deadtime", score, lp, sig, {"common_mode_a": 0.5 * (ox["mean"] + oy["mean"])}, det)
 
 
-def _cross(ft: Features, alpha: float) -> Evidence:
+def _cross(ft: Features, alpha: float, st) -> Evidence:
     det, score, lp_min, dirs = {}, 0.0, 0.0, []
     for key, c in ft.cross.items():
         lp = c["logp"] / math.log(10.0) + math.log10(2 * c.get("n_views", 1))
@@ -190,7 +191,7 @@ def _cross(ft: Features, alpha: float) -> Evidence:
     return Evidence("cross_coupling", score, lp_min, sig, {"directions": dirs}, det)
 
 
-def _unbalance(ft: Features, alpha: float) -> Evidence:
+def _unbalance(ft: Features, alpha: float, st) -> Evidence:
     best = None
     det = {"lines": []}
     for ln in ft.lines:
@@ -204,7 +205,8 @@ def _unbalance(ft: Features, alpha: float) -> Evidence:
         ratio = abs(rho)
         # forward whirl: y lags x by 90 deg for equal loops; the x (probe) and y (self-sensing)
         # loops differ, more so at high frequency, hence the wide tolerance
-        quad = -170.0 <= ang <= -10.0 and 0.2 <= ratio <= 5.0
+        w = st.whirl_phase_min_deg
+        quad = -180.0 + w <= ang <= -w and 1.0 / st.whirl_ratio_max <= ratio <= st.whirl_ratio_max
         entry = {"f_hz": ln["f_hz"], "chi2_d_x": cx, "chi2_d_y": cy, "y_over_x_deg": ang, "y_over_x_abs": ratio,
                  "both_axes": both, "quadrature_forward": quad}
         det["lines"].append(entry)
@@ -222,15 +224,17 @@ def _unbalance(ft: Features, alpha: float) -> Evidence:
                     {"speed_hz": ln["f_hz"], "speed_step_hz": 0.1 * ft.frame.df_hz}, det)
 
 
-_FUNCS = {"sensor_delay": lambda ft, a: _sensor(ft, a, "tau"), "sensor_gain": lambda ft, a: _sensor(ft, a, "alpha"),
+_FUNCS = {"sensor_delay": lambda ft, a, st: _sensor(ft, a, "tau", st),
+          "sensor_gain": lambda ft, a, st: _sensor(ft, a, "alpha", st),
           "static_load": _static_load, "unbalance": _unbalance, "amplifier_deadtime": _deadtime,
           "cross_coupling": _cross}
 
 
-def evidence_all(ft: Features, alpha: float) -> dict:
-    """Evidence for every library effect (``alpha`` is shared by the effects: Bonferroni)."""
-    a = alpha / len(LIBRARY)
-    return {name: _FUNCS[name](ft, a) for name in LIBRARY}
+def evidence_all(ft: Features, settings) -> dict:
+    """Evidence for every library effect (``settings.alpha_evidence`` is shared by the effects:
+    Bonferroni; the signature thresholds are the settings' own)."""
+    a = settings.alpha_evidence / len(LIBRARY)
+    return {name: _FUNCS[name](ft, a, settings) for name in LIBRARY}
 
 
 def rank(ev: dict) -> list[str]:
@@ -238,7 +242,7 @@ def rank(ev: dict) -> list[str]:
     return [e.name for e in sorted(ev.values(), key=lambda e: -e.score) if e.significant]
 
 
-def claim_stat(name: str, ft: Features, hints: dict, df_hz: float) -> float:
+def claim_stat(name: str, ft: Features, hints: dict, df_hz: float, settings) -> float:
     """The explained chi^2 of an effect's own feature in ``ft`` (used before and after its fit).
 
     For the unbalance it is the line chi^2 at the fitted speed in both axes (in any phase
@@ -254,7 +258,7 @@ def claim_stat(name: str, ft: Features, hints: dict, df_hz: float) -> float:
     if name in ("sensor_delay", "sensor_gain"):
         tot = 0.0
         for ax in ("x", "y"):
-            r = _ratio_path(ft, ax)
+            r = _ratio_path(ft, ax, settings)
             if r is not None:
                 tot += r["chi2_tau"] if name == "sensor_delay" else r["chi2_alpha"]
         return tot
