@@ -178,26 +178,23 @@ def _rig_config(src: str, cfg: dict, overrides: Any) -> dict:
     return rig
 
 
-def load_scenario(path: str | Path) -> dict:
-    """Read and validate a scenario file.
+def _read_scenario(path: Path) -> tuple[str, dict]:
+    """Read a scenario file and check its top-level keys.
 
-    Returns a dict with ``cfg`` (the rig's own config: the nominal one with the scenario's
-    ``overrides``, validated), ``nominal_config_hash`` (of the config without them),
-    ``excitation`` (a spec without its seed), ``seed`` (the excitation seed), ``duration_s``,
-    ``start``, ``effects`` (validated, flat), ``noise`` (or None), ``acquisition`` (normalised,
-    ``{}`` for none) and ``base_dir`` (the scenario's directory).
+    Parameters
+    ----------
+    path : Path
+        The scenario file.
 
-    Raises
-    ------
-    ScenarioError
-        Unknown or missing keys, an unknown effect or a missing effect parameter, an override
-        of a key the config lacks or to a value it rejects, bad noise or acquisition; the
-        message names the file and the key.
+    Returns
+    -------
+    src : str
+        The file name the messages start with.
+    sc : dict
+        The file's mapping, every number finite, the required keys present, no unknown key.
     """
-    from .config import ConfigError, config_hash, load_config, read_yaml_mapping
-    from .sim.effects import EffectError, validate_effect
+    from .config import read_yaml_mapping
 
-    path = Path(path)
     src = str(path)
     if not path.exists():
         raise ScenarioError(f"{src}: scenario file not found")
@@ -210,7 +207,21 @@ def load_scenario(path: str | Path) -> dict:
     if unknown:
         raise ScenarioError(f"{src}: key '{unknown[0]}' is unknown (allowed: "
                             f"{', '.join(_TOP_REQUIRED + _TOP_OPTIONAL)})")
-    base = path.resolve().parent
+    return src, sc
+
+
+def _scenario_configs(src: str, sc: Mapping, base: Path) -> tuple[dict, dict]:
+    """The nominal config (key ``config``, relative to ``base``) and the rig's own.
+
+    Returns
+    -------
+    nominal : dict
+        The config the scenario names (the default ``config.yaml`` without the key), validated.
+    cfg : dict
+        ``nominal`` with the scenario's ``overrides`` (:func:`_rig_config`), validated.
+    """
+    from .config import ConfigError, load_config
+
     cfg_path = sc.get("config")
     if cfg_path is not None:
         cfg_path = Path(cfg_path)
@@ -220,30 +231,54 @@ def load_scenario(path: str | Path) -> dict:
         nominal = load_config(cfg_path)
     except ConfigError as exc:
         raise ScenarioError(f"{src}: key 'config': {exc}") from None
-    cfg = _rig_config(src, nominal, sc.get("overrides"))
+    return nominal, _rig_config(src, nominal, sc.get("overrides"))
 
-    exp = sc["experiment"]
-    duration = sc.get("duration_s")
-    start = sc.get("start")
+
+def _excitation_spec(src: str, exp: Any, cfg: Mapping) -> tuple[dict, int, Mapping | None]:
+    """The excitation of key ``experiment``: an experiment name of ``cfg`` or an inline spec.
+
+    Returns
+    -------
+    spec : dict
+        The excitation spec without ``seed`` and ``seed_offset``.
+    seed : int
+        The excitation seed: the spec's ``seed`` (default: the config's) plus ``seed_offset``.
+    named : Mapping or None
+        The config's experiment (for its ``duration_s`` and ``start``), None for an inline spec.
+    """
     if isinstance(exp, str):
         if exp not in cfg["experiments"]:
             raise ScenarioError(f"{src}: key 'experiment': '{exp}' is not an experiment of the config "
                                 f"(known: {', '.join(cfg['experiments'])})")
-        e = cfg["experiments"][exp]
-        spec = dict(e["excitation"])
-        duration = e["duration_s"] if duration is None else duration
-        start = e["start"] if start is None else start
+        named = cfg["experiments"][exp]
+        spec = dict(named["excitation"])
         seed = int(spec.pop("seed", cfg["seed"])) + int(spec.pop("seed_offset", 0))
-    elif isinstance(exp, Mapping):
+        return spec, seed, named
+    if isinstance(exp, Mapping):
         spec = dict(exp)
         if "kind" not in spec:
             raise ScenarioError(f"{src}: key 'experiment.kind' is missing (none, pulses, multisine, sweep, step)")
         seed = spec.pop("seed", cfg["seed"])
         if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or int(seed) < 0:
             raise ScenarioError(f"{src}: key 'experiment.seed' must be an integer >= 0 (got {seed!r})")
-        seed = int(seed) + int(spec.pop("seed_offset", 0))
-    else:
-        raise ScenarioError(f"{src}: key 'experiment' must be a mapping (an excitation spec) or an experiment name")
+        return spec, int(seed) + int(spec.pop("seed_offset", 0)), None
+    raise ScenarioError(f"{src}: key 'experiment' must be a mapping (an excitation spec) or an experiment name")
+
+
+def _scenario_experiment(src: str, sc: Mapping, cfg: Mapping) -> tuple[dict, int, float | None, str]:
+    """The scenario's experiment, checked: ``(spec, seed, duration_s, start)``.
+
+    ``duration_s`` and ``start`` default to the named experiment's; ``spec`` gets ``point:
+    position`` and ``axis: y`` unless it says otherwise; ``duration_s`` may be None only for a
+    multisine or a sweep (their length follows from the spec). The excitation itself (named keys,
+    ranges) is checked by the signal generator (:func:`ssamb.signals.make_excitation`).
+    """
+    spec, seed, named = _excitation_spec(src, sc["experiment"], cfg)
+    duration = sc.get("duration_s")
+    start = sc.get("start")
+    if named is not None:
+        duration = named["duration_s"] if duration is None else duration
+        start = named["start"] if start is None else start
     spec.setdefault("point", "position")
     spec.setdefault("axis", "y")
     if duration is not None:
@@ -255,15 +290,21 @@ def load_scenario(path: str | Path) -> dict:
     start = start or "levitated"
     if start not in ("levitated", "rest"):
         raise ScenarioError(f"{src}: key 'start' must be 'levitated' or 'rest' (got {start!r})")
-    # the excitation itself (named keys, ranges) is checked by the signal generator
     from .signals import make_excitation
 
     try:
         make_excitation(spec, float(cfg["controller"]["fs_hz"]), duration, seed)
     except ValueError as exc:
         raise ScenarioError(f"{src}: key 'experiment': {exc}") from None
+    return spec, seed, duration, start
 
-    effects_raw = sc.get("effects") or []
+
+def _scenario_effects(src: str, effects_raw: Any, base: Path) -> list[dict]:
+    """The effects of key ``effects``, each validated and flat
+    (:func:`ssamb.sim.effects.validate_effect`); an ``external_force`` file is made absolute,
+    relative to ``base``, and must exist."""
+    from .sim.effects import EffectError, validate_effect
+
     if not isinstance(effects_raw, list):
         raise ScenarioError(f"{src}: key 'effects' must be a list of effects")
     effects = []
@@ -281,15 +322,48 @@ def load_scenario(path: str | Path) -> dict:
                 raise ScenarioError(f"{src}: key 'effects[{i}].file': '{f}' not found")
             flat["file"] = str(f)
         effects.append(flat)
-    noise = _validate_noise(src, sc.get("noise"))
-    acquisition = validate_acquisition(sc.get("acquisition"), src, float(cfg["controller"]["fs_hz"]),
-                                       error=ScenarioError)
-    output = sc.get("output") or {}
+    return effects
+
+
+def _output_dtype(src: str, output: Any) -> str:
+    """The sample type of key ``output`` (a mapping whose only key is ``dtype``; default float64)."""
     if not isinstance(output, Mapping) or any(k != "dtype" for k in output):
         raise ScenarioError(f"{src}: key 'output' must be a mapping with the only key 'dtype'")
     dtype = output.get("dtype", "float64")
     if dtype not in _OUTPUT_DTYPES:
         raise ScenarioError(f"{src}: key 'output.dtype' must be one of {', '.join(_OUTPUT_DTYPES)} (got {dtype!r})")
+    return dtype
+
+
+def load_scenario(path: str | Path) -> dict:
+    """Read and validate a scenario file.
+
+    Returns a dict with ``cfg`` (the rig's own config: the nominal one with the scenario's
+    ``overrides``, validated), ``nominal_config_hash`` (of the config without them),
+    ``excitation`` (a spec without its seed), ``seed`` (the excitation seed), ``duration_s``,
+    ``start``, ``effects`` (validated, flat), ``noise`` (or None), ``acquisition`` (normalised,
+    ``{}`` for none), ``dtype`` (of the written samples), ``description`` (or None) and
+    ``base_dir`` (the scenario's directory).
+
+    Raises
+    ------
+    ScenarioError
+        Unknown or missing keys, an unknown effect or a missing effect parameter, an override
+        of a key the config lacks or to a value it rejects, bad noise or acquisition; the
+        message names the file and the key.
+    """
+    from .config import config_hash
+
+    path = Path(path)
+    src, sc = _read_scenario(path)
+    base = path.resolve().parent
+    nominal, cfg = _scenario_configs(src, sc, base)
+    spec, seed, duration, start = _scenario_experiment(src, sc, cfg)
+    effects = _scenario_effects(src, sc.get("effects") or [], base)
+    noise = _validate_noise(src, sc.get("noise"))
+    acquisition = validate_acquisition(sc.get("acquisition"), src, float(cfg["controller"]["fs_hz"]),
+                                       error=ScenarioError)
+    dtype = _output_dtype(src, sc.get("output") or {})
     return {"cfg": cfg, "dtype": dtype, "excitation": spec, "seed": seed, "duration_s": duration, "start": start,
             "effects": effects, "noise": noise, "acquisition": acquisition, "base_dir": str(base),
             "nominal_config_hash": config_hash(nominal),
