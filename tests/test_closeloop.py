@@ -12,7 +12,7 @@ import yaml
 from ssamb.cli import main
 from ssamb.closeloop import run_closeloop
 from ssamb.closeloop.data import Record, make_split
-from ssamb.closeloop.residual import _ratio_fit, ljung_box
+from ssamb.closeloop.residual import _ratio_fit
 from ssamb.closeloop.settings import Settings, settings_from_config
 from ssamb.closeloop.spectra import fit_line, find_peaks_bins, make_frame, noise_floor, white_sigma, dft
 from ssamb.config import load_config
@@ -145,14 +145,6 @@ def test_ratio_fit_recovers_gain_and_delay():
     r = _ratio_fit(f, Hm_s, Hm_a, Hh_s, Hh_a, var, var)
     assert abs(r["gain"] - 1.05) < 1e-3 and abs(r["tau_s"] - 2e-5) < 2e-7
     assert r["z_tau"] > 10 and r["z_alpha"] > 10
-
-
-def test_ljung_box():
-    rng = np.random.default_rng(3)
-    e = rng.standard_normal(50000)
-    assert ljung_box(e, 30)[1] > 1e-3
-    ar = np.convolve(e, [1.0, 0.3], mode="same")
-    assert ljung_box(ar, 30)[1] < 1e-10
 
 
 #: a lighter analysis for the format tests: fewer replays and calibrated parameters

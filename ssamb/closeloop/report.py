@@ -24,7 +24,7 @@ import numpy as np
 from ..io import plain
 from .calibration import findings
 from .data import VIEWS, views
-from .residual import channel_errors, compute_features
+from .residual import channel_errors, channel_noise, compute_features
 
 __all__ = ["build_report", "findings_text"]
 
@@ -139,9 +139,9 @@ def build_report(rec, split, search, settings, source: str, timing: dict) -> dic
     """The ``closeloop.json`` dictionary."""
     meas_v = views(rec.channels)
     hold = split.hold
-    ft = compute_features(rec, _hold_frame(rec, split), meas_v, views(search.final), settings,
-                          rec.channels, search.final, lines=False)
-    sigma, sig_ch = ft.sigma, ft.sigma_ch
+    frame = _hold_frame(rec, split)
+    sigma = compute_features(rec, frame, meas_v, views(search.final), settings, lines=False).sigma
+    sig_ch = channel_noise(frame, rec.channels, search.final, settings)
     cal_block, params, not_ident = _calibration(search, sigma, meas_v, hold, views(search.nominal))
     effects = _effects(search, sigma, meas_v, hold)
 

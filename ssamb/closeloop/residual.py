@@ -1,4 +1,4 @@
-r"""Residual analysis: errors, offsets, lines, excited-line ratios, cross-axis, ripple, whiteness.
+r"""Residual analysis: errors, offsets, lines, excited-line ratios, cross-axis, ripple.
 
 The residual of a view :math:`v` is :math:`e_v = y_v - \hat y_v` (measured minus model).
 :func:`compute_features` turns it, over one analysis segment (the fitting part or the held-out
@@ -26,7 +26,6 @@ part), into the evidence the effect signatures read:
   the excited lines);
 * **ripple distortion**: residual of the coil currents on the periodic grid above
   ``ripple_min_hz`` (where the excitation puts nothing but the PWM sampling pattern);
-* **whiteness**: Ljung-Box :math:`Q = n(n+2)\sum_{k=1}^{L} \hat\rho_k^2/(n-k)`, :math:`\chi^2_L`.
 """
 from __future__ import annotations
 
@@ -40,8 +39,7 @@ from .data import CHANNELS, CURRENT_CHANNELS, VIEWS, unit_of
 from .spectra import (Frame, dft, find_peaks_bins, fit_line, noise_floor, offset, welch_transfer,
                       white_sigma)
 
-__all__ = ["Features", "compute_features", "channel_errors", "ljung_box", "consistency",
-           "xcorr_with_bounds"]
+__all__ = ["Features", "compute_features", "channel_errors", "channel_noise"]
 
 #: views of each axis (for the cross-axis and unbalance tests)
 AXIS_VIEWS = {"x": ("x_meas", "d_x", "u_x"), "y": ("y_ss", "y_meas", "d_y", "u_y")}
@@ -64,8 +62,6 @@ class Features:
     ratios: dict = field(default_factory=dict)
     cross: dict = field(default_factory=dict)
     ripple: dict = field(default_factory=dict)
-    whiteness: dict = field(default_factory=dict)
-    sigma_ch: dict = field(default_factory=dict)
     floor: dict = field(default_factory=dict)
     excited_f_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
@@ -101,45 +97,6 @@ def channel_errors(meas: dict, model: dict, sl: slice, sigma: dict | None = None
         cur["noise_rms"] = float(np.sqrt(np.mean([sigma[c] ** 2 for c in CURRENT_CHANNELS])))
     out["currents"] = cur
     return out
-
-
-def ljung_box(e: np.ndarray, lags: int) -> tuple[float, float, np.ndarray]:
-    r"""Ljung-Box statistic, its :math:`\chi^2_L` p-value and the autocorrelation :math:`\hat\rho_{1..L}`."""
-    e = np.asarray(e, float) - np.mean(e)
-    n = len(e)
-    nfft = 1 << int(math.ceil(math.log2(2 * n)))
-    F = np.fft.rfft(e, nfft)
-    ac = np.fft.irfft(np.abs(F) ** 2, nfft)[: lags + 1]
-    if ac[0] <= 0:
-        return 0.0, 1.0, np.zeros(lags)
-    rho = ac[1:] / ac[0]
-    k = np.arange(1, lags + 1)
-    q = float(n * (n + 2) * np.sum(rho ** 2 / (n - k)))
-    return q, float(stats.chi2.sf(q, lags)), rho
-
-
-def xcorr_with_bounds(e: np.ndarray, u: np.ndarray, fs_hz: float, f_max_hz: float, max_lag_s: float,
-                      conf: float = 0.99) -> dict:
-    r"""Cross-correlation of a residual with an input, decimated to ~10 x ``f_max_hz``.
-
-    Returns lags (s), :math:`\hat r_{eu}(\tau)` and the bound :math:`z_{1-(1-c)/2}/\sqrt n` that
-    a white residual stays within with probability ``conf`` at each lag.
-    """
-    from scipy import signal as sps
-
-    q = max(1, int(fs_hz / (10.0 * max(f_max_hz, 1.0))))
-    if q > 1:
-        sos = sps.butter(8, 0.8 / q, output="sos")
-        e = sps.sosfiltfilt(sos, e)[::q]
-        u = sps.sosfiltfilt(sos, u)[::q]
-    e = e - e.mean()
-    u = u - u.mean()
-    n = len(e)
-    m = min(int(max_lag_s * fs_hz / q), n - 1)
-    denom = math.sqrt(np.sum(e * e) * np.sum(u * u)) or 1.0
-    full = np.correlate(e, u, mode="full")[n - 1 - m: n + m] / denom
-    return {"lag_s": np.arange(-m, m + 1) * q / fs_hz, "r": full,
-            "bound": float(stats.norm.ppf(0.5 + conf / 2) / math.sqrt(n))}
 
 
 def _line_floor(frame: Frame, S: np.ndarray, fl: float) -> np.ndarray:
@@ -324,159 +281,151 @@ def _cross_test(exd: dict, a: str, b: str, degree: int = 2) -> dict | None:
     return best
 
 
-def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, meas_ch: dict | None = None,
-                     model_ch: dict | None = None, lines: bool = True) -> Features:
-    """Evidence of the residual ``meas_v - model_v`` (views, whole-record arrays) over ``frame``.
-
-    ``meas_ch``/``model_ch`` (channels) add the Ljung-Box whiteness tests per channel.
-    """
+def _spectra_of(frame: Frame, meas_v: dict, model_v: dict, settings):
+    """Residual, DFTs (residual, measured, model), reproducibility floors and noise floors per view."""
     seg = slice(frame.i0, frame.i0 + frame.n)
     res_v = {v: meas_v[v] - model_v[v] for v in VIEWS}
-    X, Xm, Xh, S, sigma, fl = {}, {}, {}, {}, {}, {}
-    for v in VIEWS:
-        fl[v] = _floor(v, model_v[v][seg], settings)
-        X[v] = dft(frame, res_v[v])
-        Xm[v] = dft(frame, meas_v[v])
-        Xh[v] = dft(frame, model_v[v])
-        S[v] = noise_floor(frame, X[v], floor=fl[v])
-    # lines the excitation lacks: detect, remove, re-estimate the floor, detect again (a
-    # strong line leaks into the off-grid bins of a rectangular frame and would raise the floor)
+    fl = {v: _floor(v, model_v[v][seg], settings) for v in VIEWS}
+    X = {v: dft(frame, res_v[v]) for v in VIEWS}
+    Xm = {v: dft(frame, meas_v[v]) for v in VIEWS}
+    Xh = {v: dft(frame, model_v[v]) for v in VIEWS}
+    S = {v: noise_floor(frame, X[v], floor=fl[v]) for v in VIEWS}
+    return res_v, fl, X, Xm, Xh, S
+
+
+def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings) -> tuple[list, dict]:
+    """Lines the excitation lacks: detect, remove, re-estimate the floor, detect again (a strong
+    line leaks into the off-grid bins of a rectangular frame and would raise the floor).
+
+    Updates ``X`` and ``S`` in place (lines removed); returns the lines and the segments with
+    them removed."""
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    segs = {v: res_v[v][seg].copy() for v in VIEWS}
     found = []
-    if lines:
-        segs = {v: res_v[v][seg].copy() for v in VIEWS}
-        for _pass in range(2):
-            P = {v: np.abs(X[v]) ** 2 for v in VIEWS}
-            Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
-            clusters = find_peaks_bins(frame, P, Sl, 0.0, settings.line_search_max_hz, settings.alpha_evidence)
-            clusters = [c for c in clusters if all(abs(c["f_hz"] - ln["f_hz"]) > 2 * frame.df_hz for ln in found)]
-            if not clusters:
-                break
-            for c in clusters[:6]:
-                sig_at = {v: math.sqrt(S[v][c["bin"]] / frame.w2) for v in VIEWS}
-                ln = fit_line(frame, segs, sig_at, c["f_hz"])
-                ln["views_detected"] = sorted(c["views"])
-                ln["peak_ratio"] = c["peak"]
-                ln["threshold"] = c["threshold"]
-                found.append(ln)
-                for v in VIEWS:
-                    segs[v] = segs[v] - ln["component"][v]
+    for _pass in range(2):
+        P = {v: np.abs(X[v]) ** 2 for v in VIEWS}
+        Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
+        clusters = find_peaks_bins(frame, P, Sl, 0.0, settings.line_search_max_hz, settings.alpha_evidence)
+        clusters = [c for c in clusters if all(abs(c["f_hz"] - ln["f_hz"]) > 2 * frame.df_hz for ln in found)]
+        if not clusters:
+            break
+        for c in clusters[:6]:
+            sig_at = {v: math.sqrt(S[v][c["bin"]] / frame.w2) for v in VIEWS}
+            ln = fit_line(frame, segs, sig_at, c["f_hz"])
+            ln.update(views_detected=sorted(c["views"]), peak_ratio=c["peak"], threshold=c["threshold"])
+            found.append(ln)
             for v in VIEWS:
-                full = res_v[v].copy()
-                full[seg] = segs[v]
-                X[v] = dft(frame, full)
-                S[v] = noise_floor(frame, X[v], floor=fl[v])
-        if found:
-            # the lines are removed from residual and measurement alike for everything below
-            for v in VIEWS:
-                comp = np.zeros_like(res_v[v])
-                comp[seg] = res_v[v][seg] - segs[v]
-                res_v[v] = res_v[v] - comp
-                meas_v = {**meas_v, v: meas_v[v] - comp}
-                Xm[v] = dft(frame, meas_v[v])
-        # final amplitudes against the final floor
-        for ln in found:
-            k = int(round(ln["f_hz"] / frame.df_hz))
-            for v in VIEWS:
-                se = math.hypot(math.sqrt(S[v][min(k, len(S[v]) - 1)] / frame.w2) * ln["se_scale"], fl[v])
-                ln["se"][v] = se
-                ln["chi2"][v] = abs(ln["phasor"][v]) ** 2 / se ** 2 if se > 0 else float("inf")
-            ln.pop("component", None)
+                segs[v] = segs[v] - ln["component"][v]
+        for v in VIEWS:
+            full = res_v[v].copy()
+            full[seg] = segs[v]
+            X[v] = dft(frame, full)
+            S[v] = noise_floor(frame, X[v], floor=fl[v])
+    for ln in found:          # final amplitudes against the final floor
+        k = int(round(ln["f_hz"] / frame.df_hz))
+        for v in VIEWS:
+            se = math.hypot(math.sqrt(S[v][min(k, len(S[v]) - 1)] / frame.w2) * ln["se_scale"], fl[v])
+            ln["se"][v] = se
+            ln["chi2"][v] = abs(ln["phasor"][v]) ** 2 / se ** 2 if se > 0 else float("inf")
+    return found, segs
+
+
+def _remove_lines(frame: Frame, res_v: dict, meas_v: dict, Xm: dict, segs: dict) -> dict:
+    """Residual and measurement with the found lines removed (for everything after the lines)."""
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    meas_v = dict(meas_v)
     for v in VIEWS:
-        sigma[v] = white_sigma(frame, S[v])
-    # deterministic content below the model's reproducibility floor is not evidence: the line
-    # tests see the floor as a line of amplitude fl in every bin
-    Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
-    ft = Features(frame=frame, sigma=sigma, S=S, X=X)
-    ft.lines = found
-    ft.floor = fl
-    # offsets
+        comp = np.zeros_like(res_v[v])
+        comp[seg] = res_v[v][seg] - segs[v]
+        res_v[v] = res_v[v] - comp
+        meas_v[v] = meas_v[v] - comp
+        Xm[v] = dft(frame, meas_v[v])
+    return meas_v
+
+
+def _excited_residual(exd: dict) -> dict:
+    """Per view, the chi-square of the residual at the excited lines (each bin once) and its p."""
+    out = {}
     for v in VIEWS:
-        mu, se = offset(frame, res_v[v], S[v])
-        se = math.hypot(se, fl[v])
-        ft.offsets[v] = {"mean": mu, "se": se, "z": mu / se if se > 0 else 0.0}
-    # excited lines
-    exd = _excited_data(rec, frame, meas_v, model_v, Sl, X, Xm, Xh, fl)
-    allf = np.unique(np.concatenate([d["f_hz"] for d in exd.values()])) if exd else np.zeros(0)
-    ft.excited_f_hz = allf
-    for v in VIEWS:
-        chi, k = 0.0, 0
-        seen = set()
-        c = 1.0
+        chi, k, seen, c = 0.0, 0, set(), 1.0
         for d in exd.values():
             c = d.get("chi_scale", 1.0)
             for i, b in enumerate(d["bins"]):
-                if int(b) in seen:
-                    continue
-                seen.add(int(b))
-                chi += float(np.abs(d["E"][v][i]) ** 2 / d["Enoise"][v][i])
-                k += 1
-        ft.excited_residual[v] = {"chi2": chi, "k": k, "p": _gamma_p(chi / c, max(int(round(k / c)), 1)) if k else 1.0,
-                                  "excess_ratio": chi / k - 1.0 if k else 0.0}
-    if lines and frame.periodic and exd:
-        ft.lines.extend(_isolated_excited_lines(frame, X, Sl, exd, settings.alpha_evidence, settings.line_isolation))
+                if int(b) not in seen:
+                    seen.add(int(b))
+                    chi += float(np.abs(d["E"][v][i]) ** 2 / d["Enoise"][v][i])
+                    k += 1
+        out[v] = {"chi2": chi, "k": k, "p": _gamma_p(chi / c, max(int(round(k / c)), 1)) if k else 1.0,
+                  "excess_ratio": chi / k - 1.0 if k else 0.0}
+    return out
+
+
+def _paths(ft: Features, exd: dict, settings) -> None:
+    """Sensor-path ratios and the cross-axis tests (into ``ft``).
+
+    x: the probe over the coil current; y: the estimate over the coil current, the estimate
+    over the evaluation probe (the sensor path alone: plant changes cancel) and the evaluation
+    probe over the coil current (the plant alone)."""
     for ax, d in exd.items():
-        # sensor over coil current; for y also the self-sensing estimate over the evaluation
-        # sensor (the sensor path alone: plant changes cancel) and the evaluation sensor over
-        # the coil current (the plant alone)
         paths = {"x": (("x", "x_meas", "d_x"),),
                  "y": (("y", "y_ss", "d_y"), ("y_sensor", "y_ss", "y_meas"), ("y_plant", "y_meas", "d_y"))}[ax]
         for name, sv, va in paths:
             r = _ratio_fit(d["f_hz"], d["Hm"][sv], d["Hm"][va], d["Hh"][sv], d["Hh"][va], d["var"][sv], d["var"][va],
                            settings.ratio_min_snr)
             if r is not None:
-                r["axis"] = ax
-                r["path"] = f"{sv}/{va}"
+                r["axis"], r["path"] = ax, f"{sv}/{va}"
                 ft.ratios[name] = r
     for a, b in (("x", "y"), ("y", "x")):
         c = _cross_test(exd, a, b)
         if c is not None:
             ft.cross[f"{a}->{b}"] = c
-    # ripple distortion (periodic frames: grid bins above ripple_min_hz)
+
+
+def _ripple(frame: Frame, X: dict, Sl: dict, settings) -> dict:
+    """Ripple distortion: residual chi-square of the coil currents on the grid above ``ripple_min_hz``."""
+    sel = frame.grid_mask & (frame.f_hz >= settings.ripple_min_hz)
+    k = int(np.count_nonzero(sel))
+    out = {}
+    for v in ("c_x", "c_y", "d_x", "d_y"):
+        chi = float(np.sum(np.abs(X[v][sel]) ** 2 / Sl[v][sel]))
+        out[v] = {"chi2": chi, "k": k, "p": _gamma_p(chi, k), "excess_ratio": chi / k - 1.0 if k else 0.0}
+    return out
+
+
+def channel_noise(frame: Frame, meas_ch: dict, model_ch: dict, settings) -> dict:
+    """White-equivalent noise level of every channel's residual over ``frame`` (off-grid floor)."""
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    return {c: white_sigma(frame, noise_floor(frame, dft(frame, meas_ch[c] - model_ch[c]),
+                                              floor=_floor(c, model_ch[c][seg], settings)))
+            for c in CHANNELS}
+
+
+def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, lines: bool = True) -> Features:
+    """Evidence of the residual ``meas_v - model_v`` (views, whole-record arrays) over ``frame``
+    (module docstring)."""
+    res_v, fl, X, Xm, Xh, S = _spectra_of(frame, meas_v, model_v, settings)
+    found = []
+    if lines:
+        found, segs = _find_lines(frame, res_v, X, S, fl, settings)
+        if found:
+            meas_v = _remove_lines(frame, res_v, meas_v, Xm, segs)
+        for ln in found:
+            ln.pop("component", None)
+    ft = Features(frame=frame, sigma={v: white_sigma(frame, S[v]) for v in VIEWS}, S=S, X=X)
+    ft.lines, ft.floor = found, fl
+    # deterministic content below the model's reproducibility floor is not evidence: the line
+    # tests see the floor as a line of amplitude fl in every bin
+    Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
+    for v in VIEWS:
+        mu, se = offset(frame, res_v[v], S[v])
+        se = math.hypot(se, fl[v])
+        ft.offsets[v] = {"mean": mu, "se": se, "z": mu / se if se > 0 else 0.0}
+    exd = _excited_data(rec, frame, meas_v, model_v, Sl, X, Xm, Xh, fl)
+    ft.excited_f_hz = np.unique(np.concatenate([d["f_hz"] for d in exd.values()])) if exd else np.zeros(0)
+    ft.excited_residual = _excited_residual(exd)
+    if lines and frame.periodic and exd:
+        ft.lines.extend(_isolated_excited_lines(frame, X, Sl, exd, settings.alpha_evidence, settings.line_isolation))
+    _paths(ft, exd, settings)
     if frame.periodic:
-        sel = frame.grid_mask & (frame.f_hz >= settings.ripple_min_hz)
-        k = int(np.count_nonzero(sel))
-        for v in ("c_x", "c_y", "d_x", "d_y"):
-            chi = float(np.sum(np.abs(X[v][sel]) ** 2 / Sl[v][sel]))
-            ft.ripple[v] = {"chi2": chi, "k": k, "p": _gamma_p(chi, k), "excess_ratio": chi / k - 1.0 if k else 0.0}
-    if meas_ch is not None and model_ch is not None:
-        for c in CHANNELS:
-            e_full = meas_ch[c] - model_ch[c]
-            fl_c = _floor(c, model_ch[c][seg], settings)
-            ft.sigma_ch[c] = white_sigma(frame, noise_floor(frame, dft(frame, e_full), floor=fl_c))
-            e = e_full[seg]
-            if np.std(e) <= 3.0 * fl_c:       # a residual at the reproducibility floor is not tested
-                ft.whiteness[c] = {"Q": 0.0, "p": 1.0, "lags": settings.ljung_box_lags, "below_floor": True}
-                continue
-            q, p, rho = ljung_box(e, settings.ljung_box_lags)
-            ft.whiteness[c] = {"Q": q, "p": p, "lags": settings.ljung_box_lags, "rho": rho}
+        ft.ripple = _ripple(frame, X, Sl, settings)
     return ft
-
-
-def consistency(ft: Features, alpha: float) -> tuple[bool, list]:
-    """Is the residual consistent with noise? Returns ``(ok, failures)``.
-
-    Four families, each at family-wise level ``alpha / 4`` (Bonferroni inside): offsets,
-    excited-line residual (residual coherent with the excitation), lines the excitation lacks,
-    ripple distortion; plus the Ljung-Box whiteness of every channel.
-    """
-    fam = alpha / 5.0
-    fails = []
-    nv = len(ft.offsets)
-    zc = stats.norm.isf(fam / (2 * nv))
-    for v, o in ft.offsets.items():
-        if abs(o["z"]) > zc:
-            fails.append({"test": "offset", "view": v, "mean": o["mean"], "z": o["z"]})
-    for v, r in ft.excited_residual.items():
-        if r["k"] and r["p"] < fam / len(ft.excited_residual):
-            fails.append({"test": "residual_at_excited_lines", "view": v, "chi2": r["chi2"], "k": r["k"], "p": r["p"]})
-    for ln in ft.lines:
-        fails.append({"test": "line_not_excited", "f_hz": ln["f_hz"], "views": ln["views_detected"],
-                      "amplitude": {v: abs(a) for v, a in ln["phasor"].items()}})
-    for v, r in ft.ripple.items():
-        if r["p"] < fam / max(len(ft.ripple), 1):
-            fails.append({"test": "ripple_distortion", "view": v, "chi2": r["chi2"], "k": r["k"], "p": r["p"]})
-    if ft.whiteness:
-        for c, w in ft.whiteness.items():
-            if w["p"] < fam / len(ft.whiteness):
-                fails.append({"test": "whiteness", "channel": c, "Q": w["Q"], "p": w["p"]})
-    return (not fails), fails

@@ -254,19 +254,17 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
 
 
 def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, progress: bool):
-    """Joint refit of the accepted effects' parameters and the calibrated parameters that the
-    data identified or that conflicted with their tolerance (the others stay at their calibrated
-    values: the data say nothing more about them).
+    """Joint refit of the accepted effects' parameters and every calibrated parameter (from their
+    current values: the prior keeps the unidentified ones where they were, and their tolerance
+    still reaches the others' standard errors).
 
-    Returns the fit, the calibration vector (all parameters), the overrides and effects of the
-    final model, and the identifiability of every parameter (the refitted ones from the joint
-    fit, the others from the calibration).
+    Returns the fit, the calibration vector, the overrides and effects of the final model, and
+    the identifiability of every parameter.
     """
     from .calibration import calibration_problem
 
     specs = cal.specs
-    free = [i for i, sp in enumerate(specs)
-            if cal.ident["per_parameter"][sp.key]["identified"] or sp.key in cal.conflicts]
+    free = list(range(len(specs)))
     models = [restart(a["model"], a["theta"]) for a in accepted]
     sizes = [len(m.params) for m in models]
     cuts = np.cumsum([len(free)] + sizes)

@@ -42,7 +42,7 @@ class Settings:
     alpha_accept : float
         Significance level of the held-out improvement test of a fitted effect.
     alpha_noise : float
-        Family-wise level of the "residual consistent with noise" tests (whiteness, offsets,
+        Family-wise level of the "residual consistent with noise" tests (offsets,
         lines, residual coherent with the excitation).
     min_explained : float
         Smallest fraction of the residual excess (power above the noise floor, held out) that an
@@ -55,8 +55,6 @@ class Settings:
         Upper frequency of the search for lines the excitation does not contain.
     ripple_min_hz : float
         Lower frequency of the band in which current-ripple distortion is looked for.
-    ljung_box_lags : int
-        Lags of the Ljung-Box whiteness test.
     floor_position_m, floor_current_a : float
         Smallest noise level assumed for a channel (a channel logged without noise, like the
         digital controller outputs, would otherwise get infinite weight).
@@ -126,7 +124,6 @@ class Settings:
     candidates_per_round: int = 3
     line_search_max_hz: float = 2000.0
     ripple_min_hz: float = 2000.0
-    ljung_box_lags: int = 30
     floor_position_m: float = 1e-10
     floor_current_a: float = 1e-6
     floor_relative: float = 1e-5
