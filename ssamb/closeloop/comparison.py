@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .data import Record, Split, unit_of, views
+from .data import Record, Split, pwm_lines, unit_of, views
 from .features import (COST_VIEWS, Features, Layout, Whitener, features, make_layout, replicate_factors,
                         scale_views)
 from .replay import Replayer
@@ -83,15 +83,22 @@ class Comparison:
 
     @classmethod
     def build(cls, record: Record, split: Split, replay: Replayer, seeds, floor_position_m: float,
-              floor_current_a: float) -> "Comparison":
-        """Frames of the two parts and the measured features (lines are added by :meth:`set_lines`)."""
+              floor_current_a: float, pwm_harmonics: int = 8) -> "Comparison":
+        """Frames of the two parts and the measured features: DC, the excited lines and the PWM
+        carrier's aliased harmonics (:func:`ssamb.closeloop.data.pwm_lines`); lines the excitation
+        lacks are added by :meth:`set_lines`."""
+        import dataclasses
+
         floor = np.array([floor_position_m if unit_of(v) == "m" else floor_current_a for v in COST_VIEWS])
+        ripple = pwm_lines(float(replay.cfg["table1"]["f_pwm_hz"]), record.fs_hz, pwm_harmonics)
+        record = dataclasses.replace(record, device_lines_hz=ripple)
+        replay.record = record
         c = cls(record, split, replay, tuple(int(s) for s in seeds), floor)
         fs, sig, P, lines = record.fs_hz, record.signal, split.n_period, record.lines_hz
         fit_frame = make_frame(fs, split.i0, split.i_fit - split.i0, sig, P, lines)
         hold_frame = make_frame(fs, split.i_fit, split.i_end - split.i_fit, sig, P, lines)
-        c.fit = Part(fit_frame, make_layout(fit_frame, sig), None)
-        c.hold = Part(hold_frame, make_layout(hold_frame, sig), None)
+        c.fit = Part(fit_frame, make_layout(fit_frame, sig, ripple), None)
+        c.hold = Part(hold_frame, make_layout(hold_frame, sig, ripple), None)
         c._measure()
         return c
 
@@ -102,10 +109,11 @@ class Comparison:
         self.hold.data = features(self.hold.layout, meas, self.floor, factors=factors)
 
     def set_lines(self, lines_hz) -> None:
-        """Read the given line frequencies as features too (and rebuild the whiteners)."""
+        """Read the given line frequencies as features too, beside the device's own (and rebuild
+        the whiteners)."""
         self.lines_hz = tuple(float(f) for f in lines_hz)
         for part in (self.fit, self.hold):
-            part.layout = part.layout.with_lines(self.lines_hz)
+            part.layout = part.layout.with_lines(self.record.device_lines_hz + self.lines_hz)
         self._measure()
         if self._nominal:
             self.calibrate_noise(**self._nominal)

@@ -20,7 +20,7 @@ import numpy as np
 from ..io import DataError
 
 __all__ = ["CHANNELS", "POSITION_CHANNELS", "CURRENT_CHANNELS", "VIEWS", "Record", "Split",
-           "record_from_arrays", "make_split", "views", "unit_of"]
+           "record_from_arrays", "make_split", "views", "unit_of", "pwm_lines"]
 
 #: logged channels compared with the model
 CHANNELS = ("x_meas", "y_meas", "y_ss", "i_ypos", "i_yneg", "i_xpos", "i_xneg", "u_x", "u_y")
@@ -31,6 +31,24 @@ VIEWS = ("x_meas", "y_ss", "y_meas", "d_x", "d_y", "c_x", "c_y", "u_x", "u_y")
 #: the view that carries each axis' position as the controller sees it, and its actuator view
 SENSOR_VIEW = {"x": "x_meas", "y": "y_ss"}
 ACTUATOR_VIEW = {"x": "d_x", "y": "d_y"}
+
+
+def pwm_lines(f_pwm_hz: float, fs_hz: float, harmonics: int) -> tuple:
+    r"""The PWM carrier's first ``harmonics`` harmonics as the sampling sees them (aliased into
+    :math:`[0, f_s/2]`: :math:`|k f_{pwm} - f_s\,\mathrm{round}(k f_{pwm}/f_s)|`), distinct, sorted.
+
+    A two-state amplifier's ripple is a periodic waveform at the carrier; its harmonics alias to
+    fixed frequencies (30 kHz at 83.3 kHz: 30, 23.3, 6.7, 36.7, 16.6, 13.4, 39.9, 10.1 kHz). Their
+    amplitude and phase carry the ripple's shape: the dead time, the supply voltage and the
+    coils' inductance, which the low-frequency response barely shows.
+    """
+    out = set()
+    for k in range(1, harmonics + 1):
+        f = k * f_pwm_hz
+        a = abs(f - fs_hz * round(f / fs_hz))
+        if 0 < a < fs_hz / 2:
+            out.add(round(a, 6))
+    return tuple(sorted(out))
 
 
 def unit_of(name: str) -> str:
@@ -82,6 +100,10 @@ class Record:
     acquisition : dict
         The logging chain (``meta.acquisition``: the logger's anti-alias filter, validated;
         empty when none), which the replay applies to the model's channels too.
+    device_lines_hz : tuple
+        Lines the device itself makes whatever the excitation: the PWM carrier's harmonics,
+        aliased by the sampling (:func:`pwm_lines`; set by the comparison, which knows the
+        model's carrier). They are features, and never candidates for a line the model lacks.
     meta : dict
     """
 
@@ -96,6 +118,7 @@ class Record:
     start: str
     settle_s: float | None
     acquisition: dict = field(default_factory=dict)
+    device_lines_hz: tuple = ()
     meta: dict = field(default_factory=dict)
 
     @property

@@ -11,8 +11,9 @@ draws finds a cost several standard deviations below its expectation, and parame
 standard errors off). This module therefore never compares single evaluations:
 
 1. **Design.** At the centre :math:`\theta_k`: ``centre_runs`` evaluations with distinct seeds,
-   and for each parameter the pair :math:`\theta_k \pm h_i e_i` sharing one seed (common random
-   numbers cancel the part of the noise that a parameter change does not re-randomise).
+   and mirror pairs :math:`\theta_k \pm h \odot z_j` sharing one seed (common random numbers
+   cancel the part of the noise that a parameter change does not re-randomise), the signs
+   :math:`z_j` random over all parameters at once (:func:`_pairs`).
 2. **Surrogate.** The linear model :math:`r(\theta) \approx a + B(\theta - \theta_k)`: the
    anchor :math:`a` is the mean of the centre runs (no curvature bias from the pairs), the
    Jacobian :math:`B` the least-squares fit to every evaluation so far whose point lies within
@@ -67,7 +68,10 @@ class EstimateSettings:
         Evaluations at each centre (distinct seeds): their mean is the surrogate's anchor and
         their spread the model noise.
     pair_runs : int
-        Replicates (distinct seeds) of each finite-difference pair.
+        Replicates (distinct seeds) of the design's mirror pairs.
+    design : str
+        ``signs`` (all parameters perturbed at once with random signs) or ``axes`` (one at a
+        time): :func:`_pairs`.
     max_iter : int
         Gauss-Newton iterations.
     tol : float
@@ -86,6 +90,7 @@ class EstimateSettings:
 
     centre_runs: int = 4
     pair_runs: int = 1
+    design: str = "signs"
     max_iter: int = 8
     tol: float = 1.0
     pool_radius: float = 1.0
@@ -288,16 +293,35 @@ def _centre(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs:
 
 
 def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list) -> None:
-    """The +-h pairs around ``theta``, ``pair_runs`` replicates each, one seed per replicate of a
-    pair (added to ``runs``)."""
+    r"""The design around ``theta`` (added to ``runs``): mirror pairs :math:`\theta \pm h \odot z_j`.
+
+    ``design: axes`` perturbs one parameter at a time (:math:`z_j = e_j`); ``design: signs``
+    perturbs all at once (:math:`z_j \in \{\pm1\}^p`: the rows of an orthogonal array, ``n``
+    pairs for the smallest power of two ``n > p``, signs and order drawn per iteration): each run
+    then informs every column of the Jacobian, and the regression's :math:`X^TX = 2nh^2 I` is
+    ``n`` times larger per parameter than with the axes (the simultaneous-perturbation
+    advantage) -- the noise of a weakly determined valley drops below its signal. A mirror pair shares one seed (common random numbers); the pair's
+    midpoint is the centre, so curvature does not bias the slope. ``pair_runs`` replicates the
+    design with other seeds.
+    """
     base = prob.seed0 + 1000 * k
-    for i in range(len(theta)):
-        for rep in range(s.pair_runs):
-            for sign in (1.0, -1.0):
-                t = theta.copy()
-                t[i] = np.clip(t[i] + sign * prob.step[i], prob.lower[i], prob.upper[i])
-                if t[i] != theta[i]:
-                    runs.append((t, np.asarray(prob.evaluate(t, base + 100 * rep + i), float)))
+    p = len(theta)
+    if s.design == "signs" and p > 1:
+        # an orthogonal array: p columns of a Hadamard matrix of order n > p (not the all-ones
+        # one), with random column signs and row order per iteration -- X^T X = 2 n h^2 I exactly
+        from scipy.linalg import hadamard
+
+        n = 1 << int(np.ceil(np.log2(p + 1)))
+        rng = np.random.default_rng([abs(int(prob.seed0)), int(k)])
+        H = hadamard(n)[:, 1:p + 1] * rng.choice([-1.0, 1.0], size=p)
+        Z = np.concatenate([H[rng.permutation(n)] for _ in range(s.pair_runs)])
+    else:
+        Z = np.tile(np.eye(p), (s.pair_runs, 1))
+    for j, z in enumerate(Z):
+        for sign in (1.0, -1.0):
+            t = np.clip(theta + sign * prob.step * z, prob.lower, prob.upper)
+            if np.any(t != theta):
+                runs.append((t, np.asarray(prob.evaluate(t, base + j), float)))
 
 
 def _margin(n: int, q: float) -> float:

@@ -432,7 +432,9 @@ class Whitener:
         """The whitener of ``fa - fb`` (``fb`` None: of ``fa`` alone, the other side noiseless)."""
         def tot(a, b):
             return a if b is None else a + b
-        W_dc = _whitening(tot(fa.cov_dc, None if fb is None else fb.cov_dc), ridge)
+        # DC: per view (its cross-view covariance rests on a handful of low bins; a large DC
+        # residual in one view, a static load's, must not leak into the others' whitened entries)
+        W_dc = _whitening(np.diag(np.diag(tot(fa.cov_dc, None if fb is None else fb.cov_dc))), ridge)
         cb = tot(fa.cov_bins, None if fb is None else fb.cov_bins)
         W_bins = np.array([_whitening(c, ridge) for c in cb.reshape((-1,) + cb.shape[-2:])]).reshape(cb.shape)
         cl = tot(fa.cov_lines, None if fb is None else fb.cov_lines)

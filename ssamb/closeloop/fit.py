@@ -40,11 +40,19 @@ __all__ = ["Base", "Candidate", "fit_candidate", "holdout_score", "chi2_views"]
 
 @dataclass
 class Base:
-    """The model a candidate is added to: parameter overrides, effects, and its prediction."""
+    """The model a candidate is added to: parameter overrides, effects, and its prediction.
+
+    ``free`` are calibrated parameters (:class:`~ssamb.closeloop.calibration.ParameterSpec`)
+    refitted with every candidate from their values ``theta_free`` (tolerance units of the
+    specs): an effect whose signature a parameter shares (a static load in y and the rotor's
+    weight) is fitted with it, not on a base that has already absorbed part of it.
+    """
 
     overrides: dict
     effects: list
     pred: dict = field(default_factory=dict, repr=False)
+    free: list = field(default_factory=list)
+    theta_free: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass
@@ -59,24 +67,27 @@ class Candidate:
     pred: dict = field(default_factory=dict, repr=False)
     score: dict = field(default_factory=dict)
     reasons: list = field(default_factory=list)
+    overrides: dict = field(default_factory=dict)
+    n_free: int = 0
 
     @property
     def passed(self) -> bool:
         return not self.reasons
 
     def slices(self) -> list:
-        """Per model, the slice of the joint parameter vector."""
-        out, a = [], 0
+        """Per model, the slice of the joint parameter vector (after the refitted parameters)."""
+        out, a = [], self.n_free
         for m in self.models:
             out.append(slice(a, a + len(m.params)))
             a += len(m.params)
         return out
 
 
-def _scaled(cmp: Comparison, part: Part, base: Base, pred: dict, effects: list) -> tuple[np.ndarray, np.ndarray]:
+def _scaled(cmp: Comparison, part: Part, base: Base, pred: dict, overrides: dict,
+            effects: list) -> tuple[np.ndarray, np.ndarray]:
     """Whitened residuals of base and candidate, rescaled by the larger of their noise factors."""
     f = np.maximum(cmp.noise_factors(part, base.overrides, base.effects),
-                   cmp.noise_factors(part, base.overrides, effects))
+                   cmp.noise_factors(part, overrides, effects))
     s = 1.0 / np.sqrt(f)
     return cmp.residual(part, base.pred) * s, cmp.residual(part, pred) * s
 
@@ -87,9 +98,11 @@ def chi2_views(cmp: Comparison, part: Part, r: np.ndarray) -> dict:
     return {v: (float(np.sum(r[g["view:" + v]] ** 2)), len(g["view:" + v])) for v in COST_VIEWS if "view:" + v in g}
 
 
-def holdout_score(cmp: Comparison, base: Base, pred: dict, effects: list, n_params: int, settings) -> dict:
-    """Held-out comparison of a candidate with the base model (module docstring)."""
-    r0, r1 = _scaled(cmp, cmp.hold, base, pred, effects)
+def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effects: list, n_params: int,
+                  settings) -> dict:
+    """Held-out comparison of a candidate (``overrides``, ``effects``, its prediction ``pred``)
+    with the base model (module docstring)."""
+    r0, r1 = _scaled(cmp, cmp.hold, base, pred, overrides, effects)
     d = r1 - r0
     nd = float(np.linalg.norm(d))
     dsse = float(r0 @ r0 - r1 @ r1)
@@ -104,34 +117,55 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, effects: list, n_para
             fracs.append(frac)
         if x1 - x0 > settings.worse_sigma * math.sqrt(12 * n):
             worse.append(v)
-    f0, f1 = _scaled(cmp, cmp.fit, base, pred, effects)
+    f0, f1 = _scaled(cmp, cmp.fit, base, pred, overrides, effects)
     dbic = float(f1 @ f1 - f0 @ f0 + n_params * math.log(len(f0)))
     return {"z": z, "delta_chi2": dsse, "explained": float(np.mean(fracs)) if fracs else 0.0,
             "views_worse": worse, "per_view": per_view, "delta_bic": dbic,
             "chi2_fit_before": float(f0 @ f0), "chi2_fit_after": float(f1 @ f1), "n_fit": len(f0)}
 
 
+def _problem(cmp: Comparison, base: Base, model: EffectModel, seed0: int, step_rel: float) -> tuple:
+    """The estimation problem of a candidate: the base's free parameters (priors: their
+    tolerances) and the effect's (no prior); and its ``build(theta) -> (overrides, effects)``."""
+    from .calibration import calibration_problem, overrides_of
+
+    k = len(base.free)
+    cp = calibration_problem(base.free, None, max_step_rel=step_rel) if k else None
+
+    def build(theta):
+        ov = dict(base.overrides)
+        if k:
+            ov.update(overrides_of(base.free, theta[:k]))
+        return ov, list(base.effects) + model.build(theta[k:])
+    cat = (lambda a, b: np.concatenate([a, b])) if k else (lambda a, b: np.asarray(b, float))
+    prob = Problem(names=tuple(sp.key for sp in base.free) + model.params,
+                   theta0=cat(np.zeros(k), model.theta0),
+                   prior_sd=cat(cp.prior_sd if k else [], np.full(len(model.params), np.inf)),
+                   step=cat(cp.step if k else [], model.step), lower=cat(cp.lower if k else [], model.lower),
+                   upper=cat(cp.upper if k else [], model.upper), evaluate=cmp.evaluator(cmp.fit, build),
+                   start=cat(base.theta_free, model.theta0), seed0=seed0, groups=cmp.groups(cmp.fit))
+    return prob, build
+
+
 def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateSettings, seed0: int,
-                  log=None) -> Candidate:
-    """Fit ``models`` (jointly) added to ``base`` on the fitting part; predict the whole record.
+                  log=None, step_rel: float = 0.05) -> Candidate:
+    """Fit ``models`` (jointly) added to ``base`` on the fitting part, with the base's free
+    parameters; predict the whole record.
 
     A fit that fails numerically (a replay that raises, a singular surrogate) returns a
     candidate rejected with the reason.
     """
     model = combine(models)
     names = tuple(m.name for m in models)
-
-    def build(theta):
-        return base.overrides, list(base.effects) + model.build(theta)
-    prob = Problem(names=model.params, theta0=model.theta0, prior_sd=np.full(len(model.params), np.inf),
-                   step=model.step, lower=model.lower, upper=model.upper, evaluate=cmp.evaluator(cmp.fit, build),
-                   seed0=seed0, groups=cmp.groups(cmp.fit))
+    prob, build = _problem(cmp, base, model, seed0, step_rel)
+    k = len(base.free)
     try:
         fit = map_fit(prob, settings, log)
-        effects = model.build(fit.theta)
         if not np.all(np.isfinite(fit.theta)):
             raise FloatingPointError("the estimate is not finite")
-        pred = cmp.prediction(base.overrides, list(base.effects) + effects)
+        ov, eff = build(fit.theta)
+        effects = eff[len(base.effects):]
+        pred = cmp.prediction(ov, eff)
     except (FloatingPointError, np.linalg.LinAlgError, ValueError, ArithmeticError, InputError) as err:
-        return Candidate(names, models, model, None, [], reasons=[f"the fit failed numerically ({err})"])
-    return Candidate(names, models, model, fit, effects, pred)
+        return Candidate(names, models, model, None, [], reasons=[f"the fit failed numerically ({err})"], n_free=k)
+    return Candidate(names, models, model, fit, effects, pred, overrides=ov, n_free=k)

@@ -62,6 +62,7 @@ class Features:
     ratios: dict = field(default_factory=dict)
     cross: dict = field(default_factory=dict)
     ripple: dict = field(default_factory=dict)
+    device: dict = field(default_factory=dict)
     floor: dict = field(default_factory=dict)
     excited_f_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
@@ -293,7 +294,7 @@ def _spectra_of(frame: Frame, meas_v: dict, model_v: dict, settings):
     return res_v, fl, X, Xm, Xh, S
 
 
-def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings) -> tuple[list, dict]:
+def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings, device_lines_hz=()) -> tuple[list, dict]:
     """Lines the excitation lacks: detect, remove, re-estimate the floor, detect again (a strong
     line leaks into the off-grid bins of a rectangular frame and would raise the floor).
 
@@ -305,7 +306,8 @@ def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings)
     for _pass in range(2):
         P = {v: np.abs(X[v]) ** 2 for v in VIEWS}
         Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
-        clusters = find_peaks_bins(frame, P, Sl, 0.0, settings.line_search_max_hz, settings.alpha_evidence)
+        clusters = find_peaks_bins(frame, P, Sl, 0.0, settings.line_search_max_hz, settings.alpha_evidence,
+                                   exclude_hz=np.asarray(device_lines_hz, float))
         clusters = [c for c in clusters if all(abs(c["f_hz"] - ln["f_hz"]) > 2 * frame.df_hz for ln in found)]
         if not clusters:
             break
@@ -392,6 +394,19 @@ def _ripple(frame: Frame, X: dict, Sl: dict, settings) -> dict:
     return out
 
 
+def _device_lines(frame: Frame, X: dict, Sl: dict, lines_hz) -> dict:
+    """Residual chi-square of the coil-current views at the device's own lines (the PWM carrier's
+    aliased harmonics, on the grid of a periodic frame): the ripple's shape, which a dead time
+    changes and the bias current does not."""
+    kb = [int(round(f / frame.df_hz)) for f in lines_hz
+          if abs(f / frame.df_hz - round(f / frame.df_hz)) < 1e-6 and round(f / frame.df_hz) < len(frame.f_hz)]
+    out = {}
+    for v in ("c_x", "c_y", "d_x", "d_y"):
+        chi = float(np.sum(np.abs(X[v][kb]) ** 2 / Sl[v][kb])) if kb else 0.0
+        out[v] = {"chi2": chi, "k": len(kb), "logp": float(stats.chi2.logsf(2 * chi, 2 * len(kb))) if kb else 0.0}
+    return out
+
+
 def channel_noise(frame: Frame, meas_ch: dict, model_ch: dict, settings) -> dict:
     """White-equivalent noise level of every channel's residual over ``frame`` (off-grid floor)."""
     seg = slice(frame.i0, frame.i0 + frame.n)
@@ -406,7 +421,7 @@ def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, l
     res_v, fl, X, Xm, Xh, S = _spectra_of(frame, meas_v, model_v, settings)
     found = []
     if lines:
-        found, segs = _find_lines(frame, res_v, X, S, fl, settings)
+        found, segs = _find_lines(frame, res_v, X, S, fl, settings, getattr(rec, "device_lines_hz", ()))
         if found:
             meas_v = _remove_lines(frame, res_v, meas_v, Xm, segs)
         for ln in found:
@@ -428,4 +443,5 @@ def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, l
     _paths(ft, exd, settings)
     if frame.periodic:
         ft.ripple = _ripple(frame, X, Sl, settings)
+        ft.device = _device_lines(frame, X, Sl, getattr(rec, "device_lines_hz", ()))
     return ft

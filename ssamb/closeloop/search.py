@@ -132,7 +132,7 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
     if cand.fit is None:
         return
     p = len(cand.model.params)
-    hs = holdout_score(cmp, base, cand.pred, list(base.effects) + cand.effects, p, settings)
+    hs = holdout_score(cmp, base, cand.pred, cand.overrides, list(base.effects) + cand.effects, p, settings)
     cand.score = hs
     z_crit = float(stats.norm.isf(settings.alpha_accept))
     if hs["z"] <= z_crit:
@@ -161,8 +161,8 @@ def _entry(cand: Candidate, rnd: int, repolish: bool = False) -> dict:
     fit = cand.fit
     hs = cand.score
     return {"name": "+".join(cand.names), "round": rnd,
-            "theta": dict(zip(cand.model.params, fit.theta.tolist())) if fit else {},
-            "se": dict(zip(cand.model.params, fit.se.tolist())) if fit else {},
+            "theta": dict(zip(cand.model.params, fit.theta[cand.n_free:].tolist())) if fit else {},
+            "se": dict(zip(cand.model.params, fit.se[cand.n_free:].tolist())) if fit else {},
             "sims": fit.evaluations if fit else 0, "iterations": fit.iterations if fit else 0,
             "holdout_z": hs.get("z"), "explained": hs.get("explained", 0.0), "views_worse": hs.get("views_worse", []),
             "delta_bic": hs.get("delta_bic"), "claims": hs.get("claims", {}), "passed": cand.passed,
@@ -183,9 +183,12 @@ def _round(cmp, base, settings, rnd, rejected):
 def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, progress) -> Candidate:
     t1 = time.perf_counter()
     models = [effect_model(n, ev[n].hints, rec.excited_axes) for n in names]
-    cand = fit_candidate(cmp, base, models, est, seed0)
+    import dataclasses
+
+    cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations))
+    cand = fit_candidate(cmp, base, models, cand_est, seed0, step_rel=settings.calibration_step_rel)
     _judge(cand, cmp, base, ev, ft, settings, measured_contact)
-    th = dict(zip(cand.model.params, cand.fit.theta.tolist())) if cand.fit else {}
+    th = dict(zip(cand.model.params, cand.fit.theta[cand.n_free:].tolist())) if cand.fit else {}
     _log(progress, f"  {'+'.join(names)}: {th} -> held-out z {cand.score.get('z', float('nan')):.1f}, explained "
                    f"{100 * cand.score.get('explained', 0.0):.0f} %, {'passes' if cand.passed else '; '.join(cand.reasons)} "
                    f"({cand.fit.evaluations if cand.fit else 0} sims, {time.perf_counter() - t1:.1f} s)")
@@ -206,8 +209,11 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
             passing.append(cand)
         else:
             rejected[name] = rejected.get(name, 0) + 1
-    if not passing and len(singles) >= 2 and not fallback:
-        top = singles[: settings.candidates_per_round]
+    z_crit = float(stats.norm.isf(settings.alpha_accept))
+    promising = [e["name"] for e in info["candidates"] if (e.get("holdout_z") or 0.0) > z_crit]
+    if not passing and len(promising) >= 2 and not fallback:
+        # two effects can hide each other: pairs of the candidates that improved held-out data
+        top = promising[: settings.candidates_per_round]
         for i in range(len(top)):
             for j in range(i + 1, len(top)):
                 cand = _try(cmp, base, [top[i], top[j]], ev, rec, settings, est,
@@ -249,11 +255,13 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
             out.accepted.append({"name": m.name, "model": m, "theta": th, "se": se, "holdout": best.score,
                                  "evidence": ev[m.name], "round": rnd, "pred": best.pred,
                                  "without_signature": bool(info.get("fallback"))})
-        base = Base(base.overrides, list(base.effects) + best.effects, best.pred)
+        base = Base(best.overrides, list(base.effects) + best.effects, best.pred, base.free,
+                    best.fit.theta[: best.n_free])
     return base
 
 
-def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, progress: bool):
+def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, progress: bool,
+           start: np.ndarray | None = None):
     """Joint refit of the accepted effects' parameters and every calibrated parameter (from their
     current values: the prior keeps the unidentified ones where they were, and their tolerance
     still reaches the others' standard errors).
@@ -271,7 +279,7 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
     sub = [specs[i] for i in free]
     names = tuple(sp.key for sp in sub) + tuple(f"{m.name}.{p}" for m in models for p in m.params)
     cp = calibration_problem(sub, None, max_step_rel=settings.calibration_step_rel)
-    theta_cal = cal.theta.copy()
+    theta_cal = (cal.theta if start is None else start).copy()
 
     def build(theta):
         th = theta_cal.copy()
@@ -285,7 +293,10 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
                    upper=np.concatenate([cp.upper] + [m.upper for m in models]),
                    evaluate=cmp.evaluator(cmp.fit, build), start=np.concatenate([theta_cal[free]] + [m.theta0 for m in models]),
                    seed0=900_000, groups=cmp.groups(cmp.fit))
-    fit = map_fit(prob, est, (lambda m: _log(progress, "  joint " + m)) if progress else None)
+    import dataclasses
+
+    joint_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.joint_iterations))
+    fit = map_fit(prob, joint_est, (lambda m: _log(progress, "  joint " + m)) if progress else None)
     ident = identifiability(fit.info, prob.prior_sd, names, settings.identifiable_ratio, cov=fit.cov)
     merged = dict(cal.ident)
     merged["per_parameter"] = {**cal.ident["per_parameter"], **ident["per_parameter"]}
@@ -311,10 +322,17 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
                    f"parameters identified; conflicts {cal.conflicts or 'none'} ({time.perf_counter() - t0:.1f} s)")
     base_ov = cal.overrides(reset_conflicts=True)
     out.calibrated = cmp.prediction(cal.overrides())
-    base = Base(base_ov, [], cmp.prediction(base_ov))
+    # the identified parameters are refitted with every candidate (a conflicting one sits at
+    # nominal: it was absorbing what an effect should explain)
+    free = [i for i, sp in enumerate(specs)
+            if cal.ident["per_parameter"][sp.key]["identified"] and sp.key not in cal.conflicts] if specs else []
+    theta_free = np.array([cal.theta[i] for i in free])
+    base = Base(base_ov, [], cmp.prediction(base_ov), [specs[i] for i in free], theta_free)
     base = _effect_search(cmp, base, settings, est, out, measured_contact, progress)
     if out.accepted or cal.conflicts:
-        fit, theta_cal, ov, eff, models, cuts, ident = _joint(cmp, cal, out.accepted, settings, est, progress)
+        start = cal.theta.copy()
+        start[free] = base.theta_free
+        fit, theta_cal, ov, eff, models, cuts, ident = _joint(cmp, cal, out.accepted, settings, est, progress, start)
         for a, lo, hi in zip(out.accepted, cuts[:-1], cuts[1:]):
             a["theta"], a["se"] = fit.theta[lo:hi], fit.se[lo:hi]
         out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}

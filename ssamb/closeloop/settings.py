@@ -81,7 +81,13 @@ class Settings:
         stated tolerance; the effect search starts with it at its nominal value.
     claim_residual : float
         An accepted effect must leave at most this fraction of its own signature's statistic
-        (or less than the evidence threshold) in the residual.
+        (or less than the evidence threshold) in the residual: it must act on what it claims
+        (an unbalance fitted to one axis of a two-axis line fails).
+    candidate_iterations : int
+        Gauss-Newton iterations of a candidate's fit (it starts from the calibrated model and the
+        evidence's hints, close to its optimum).
+    joint_iterations : int
+        Gauss-Newton iterations of the final joint refit (it starts from the fitted values).
     estimate : dict
         Settings of the estimator (:class:`ssamb.closeloop.estimate.EstimateSettings`).
     whirl_phase_min_deg : float
@@ -132,7 +138,9 @@ class Settings:
     calibration_step_rel: float = 0.05
     identifiable_ratio: float = 1.0 / 3.0
     conflict_z: float = 3.0
-    claim_residual: float = 0.01
+    claim_residual: float = 0.5
+    candidate_iterations: int = 4
+    joint_iterations: int = 4
     estimate: dict = dataclasses.field(default_factory=dict)
     whirl_phase_min_deg: float = 10.0
     whirl_ratio_max: float = 5.0

@@ -21,8 +21,9 @@ unbalance            a line at the spin frequency the excitation lacks, in     l
                      both axes, in quadrature (y lagging x: a forward-         :math:`d_x, d_y`
                      rotating force :math:`m e\omega^2`)
 amplifier_deadtime   a common-mode shift of all four coil currents, the same   :math:`z_{c_x}^2 + z_{c_y}^2`
-                     in both axes (the current loop samples an asymmetric
-                     ripple), with ripple distortion on the PWM alias lines
+                     in both axes (the current loop samples an asymmetric      plus the carrier lines'
+                     ripple), and the ripple's shape at the carrier's aliased  chi-square excess
+                     harmonics in both axes' common mode
 cross_coupling       residual in one axis coherent with the other axis'        F-test of the cross term, plus
                      excitation beyond its own response, and an x current      the offsets it implies
                      offset from the gravity-loaded y fluxes
@@ -159,20 +160,31 @@ def _static_load(ft: Features, alpha: float, st) -> Evidence:
 
 
 def _deadtime(ft: Features, alpha: float, st) -> Evidence:
+    """A common-mode shift of both axes' coil currents, alike, and the ripple's shape changed at
+    the carrier's own lines in both axes' common mode (the bias current shifts the first but
+    not the second): either, the weaker axis deciding."""
     ox, oy = ft.offsets["c_x"], ft.offsets["c_y"]
     det = {"c_x": {"offset_a": ox["mean"], "z": ox["z"]}, "c_y": {"offset_a": oy["mean"], "z": oy["z"]}}
-    if ft.ripple:
-        det["ripple"] = {v: {"chi2_per_line": r["chi2"] / max(r["k"], 1), "lines": r["k"]} for v, r in ft.ripple.items()}
     same_sign = ox["z"] * oy["z"] > 0
     q = st.deadtime_ratio_max
     similar = same_sign and 1 / q <= abs(ox["mean"]) / max(abs(oy["mean"]), 1e-30) <= q
-    # both offsets must be significant: the weaker decides
     zmin = min(abs(ox["z"]), abs(oy["z"]))
-    lp = _log10_norm2(zmin) + math.log10(2) if similar else 0.0
-    sig = similar and lp < math.log10(alpha)
-    score = ox["z"] ** 2 + oy["z"] ** 2 if sig else 0.0
+    lp_off = _log10_norm2(zmin) + math.log10(2) if similar else 0.0
+    lp_dev = 0.0
+    if ft.device:
+        dx, dy = ft.device["c_x"], ft.device["c_y"]
+        lp_dev = max(dx["logp"], dy["logp"]) / math.log(10.0) + math.log10(2)
+        det["device_lines"] = {v: {"chi2": d["chi2"], "lines": d["k"]} for v, d in ft.device.items()}
+    lp = min(lp_off, lp_dev) + math.log10(2)          # two features: Bonferroni
+    sig = lp < math.log10(alpha)
+    score = (ox["z"] ** 2 + oy["z"] ** 2 if similar else 0.0) + _device_excess(ft) if sig else 0.0
     det["same_sign_similar"] = bool(similar)
     return Evidence("amplifier_deadtime", score, lp, sig, {"common_mode_a": 0.5 * (ox["mean"] + oy["mean"])}, det)
+
+
+def _device_excess(ft: Features) -> float:
+    """The common-mode residual chi-square at the carrier's lines above its expectation."""
+    return sum(max(ft.device[v]["chi2"] - ft.device[v]["k"], 0.0) for v in ("c_x", "c_y")) if ft.device else 0.0
 
 
 def _cross(ft: Features, alpha: float, st) -> Evidence:
@@ -265,7 +277,7 @@ def claim_stat(name: str, ft: Features, hints: dict, df_hz: float, settings) -> 
     if name == "static_load":
         return ft.offsets["d_x"]["z"] ** 2 + ft.offsets["d_y"]["z"] ** 2
     if name == "amplifier_deadtime":
-        return ft.offsets["c_x"]["z"] ** 2 + ft.offsets["c_y"]["z"] ** 2
+        return ft.offsets["c_x"]["z"] ** 2 + ft.offsets["c_y"]["z"] ** 2 + _device_excess(ft)
     if name == "cross_coupling":
         return sum(c.get("delta_chi2", 0.0) for c in ft.cross.values())
     raise KeyError(name)

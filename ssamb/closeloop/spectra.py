@@ -277,8 +277,9 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         Per view, the white-equivalent noise standard deviation.
     """
     t = frame.t_s
-    if frame.periodic and abs(f0_hz / frame.df_hz - round(f0_hz / frame.df_hz)) < 1e-6 and frame.grid_mask[int(round(f0_hz / frame.df_hz))]:
-        return _grid_line(frame, segs, sigmas, int(round(f0_hz / frame.df_hz)))
+    k0 = int(round(f0_hz / frame.df_hz))
+    if frame.periodic and abs(f0_hz / frame.df_hz - k0) < 1e-6 and frame.grid_mask[k0] and not _leaks(frame, segs, sigmas, k0):
+        return _grid_line(frame, segs, sigmas, k0)
     names = list(segs)
     proj = {v: _periodic_project(frame, np.asarray(e, float)) for v, e in segs.items()}
     # whitened views stacked: one matrix product per evaluation of the objective
@@ -310,6 +311,20 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         out["chi2"][v] = float((a * a + b * b) / se ** 2) if se > 0 else float("inf")
         out["component"][v] = a * np.cos(2 * np.pi * fh * t) + b * np.sin(2 * np.pi * fh * t)
     return out
+
+
+def _leaks(frame: Frame, segs: dict, sigmas: dict, k: int, chi2_min: float = 30.0) -> bool:
+    """Does a line found at grid bin ``k`` leak into its two off-grid neighbours? Then it is a
+    line between grid frequencies that the nearest bin only caught (a rotor spinning at
+    114.8 Hz under a 5 Hz grid peaks at 115 Hz), not one on the grid: an exact harmonic of the
+    period puts all its power in its own bin. ``chi2_min`` is the neighbours' summed
+    chi-square over their noise (two complex bins per view) that counts as leakage."""
+    chi = 0.0
+    for v, e in segs.items():
+        X = np.fft.rfft(np.asarray(e, float))
+        var = sigmas[v] ** 2 * frame.n if sigmas[v] > 0 else np.inf
+        chi += float((abs(X[k - 1]) ** 2 + abs(X[min(k + 1, len(X) - 1)]) ** 2) / var)
+    return chi > chi2_min * len(segs)
 
 
 def _grid_line(frame: Frame, segs: dict, sigmas: dict, k: int) -> dict:
