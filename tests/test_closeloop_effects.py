@@ -245,7 +245,16 @@ def test_randomized_acceptance(tmp_path, cfg):
     effect (none in a quarter of the draws): at least 90 % pass every criterion."""
     n = int(os.environ.get("SSAMB_SUITE_DRAWS", "40"))
     k0 = int(os.environ.get("SSAMB_SUITE_START", "0"))        # to split the suite over processes
-    out = [run_draw(tmp_path, cfg, k, with_effect=(k % 4 != 3)) for k in range(k0, k0 + n)]
+    log = _suite_out(tmp_path, "acceptance").with_suffix(".jsonl")
+    out = []
+    for k in range(k0, k0 + n):
+        try:
+            d = run_draw(tmp_path, cfg, k, with_effect=(k % 4 != 3))
+        except Exception as exc:          # a crash is a failure of the draw, reported with the others
+            d = {"draw": k, "failures": [f"crash: {type(exc).__name__}: {exc}"]}
+        out.append(d)
+        with open(log, "a") as fh:        # one line per draw as it ends
+            fh.write(json.dumps(d) + "\n")
     rate = sum(not d["failures"] for d in out) / n
     _suite_out(tmp_path, "acceptance").write_text(json.dumps({"pass_rate": rate, "draws": out}, indent=1))
     assert rate >= 0.9, [(d["draw"], d["failures"]) for d in out if d["failures"]]
