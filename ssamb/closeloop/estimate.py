@@ -13,38 +13,39 @@ standard errors off). This module therefore never compares single evaluations:
 1. **Design.** At the centre :math:`\theta_k`: ``centre_runs`` evaluations with distinct seeds,
    and mirror pairs :math:`\theta_k \pm h \odot z_j` sharing one seed (common random numbers
    cancel the part of the noise that a parameter change does not re-randomise), the signs
-   :math:`z_j` random over all parameters at once (:func:`_pairs`).
+   :math:`z_j` the rows of an orthogonal array over all parameters at once (:func:`_pairs`).
 2. **Surrogate.** The linear model :math:`r(\theta) \approx a + B(\theta - \theta_k)`: the
    anchor :math:`a` is the mean of the centre runs (no curvature bias from the pairs), the
-   Jacobian :math:`B` the least-squares fit to every evaluation so far whose point lies within
-   ``pool_radius`` steps of the centre in every coordinate (the design points of earlier
-   iterations near the optimum keep contributing), each column shrunk towards zero by its
-   noise (:func:`_surrogate`): a parameter the features do not depend on would otherwise get a
-   column of pure noise, which looks like information (errors in variables).
-   :math:`\rho` is the pooled variance of the centre runs.
+   Jacobian :math:`B` the least-squares fit to every evaluation so far within ``pool_radius``
+   steps of the centre in every coordinate (:func:`_surrogate`). :math:`\rho` is the pooled
+   variance of the centre runs.
 3. **Information.** The noise of :math:`\hat B` inflates :math:`\hat B^T\hat B` by
-   :math:`N s^2 (X^TX)^{-1}` (errors in variables; :math:`s^2` the regression's residual
-   variance): a parameter the features do not depend on gets a column of pure noise, and a
-   valley along which two parameters trade off (rotor mass and coil turns) gets a curvature it
-   does not have. The correction is subtracted and the result made positive semi-definite
-   (:func:`_information`).
+   :math:`N\rho\,(X^TX)^{-1}` (errors in variables): a parameter the features do not depend on
+   gets a column of pure noise, and a valley along which two parameters trade off (rotor mass
+   and coil turns) a curvature it does not have. The correction is subtracted and the result
+   made positive semi-definite (:func:`_information`).
 4. **Step.** With the prior :math:`\theta \sim N(\theta_0, \mathrm{diag}\,\sigma_p^2)`
    (:math:`\sigma_p = \infty` for parameters without one) the Gauss-Newton step minimises
    :math:`\|a + B d\|^2 + \|(\theta_k + d - \theta_0)/\sigma_p\|^2`, restricted to the directions
-   the data determine (scaled information at least ``min_information``; along the others the
-   estimate stays where the prior holds it, instead of following the surrogate's noise), and
-   shortened to the bounds and a trust region of ``max_step`` steps :math:`h`.
-5. **Replicate** the pairs at the same centre when the step is at the noise level but some
-   direction looks informative while its Jacobian is still noise (the pooled regression gains
-   the replicates: a weakly determined valley between two parameters needs them).
-6. **Stop** when the step is at the noise level, :math:`\sqrt{d^T H d / p} <` ``tol`` with
-   :math:`H = \hat{\mathcal I} + \Lambda` the posterior precision (the natural metric: a step along a
-   weakly determined valley is measured against the valley's own uncertainty; the anchor's
-   noise alone moves the step by about :math:`\sqrt{\rho/m}`), or after ``max_iter`` iterations.
-   The estimate is :math:`\hat\theta = \theta_k + d`; its covariance
-   :math:`(\hat{\mathcal I} + \Lambda)^{-1}` (:math:`\hat{\mathcal I}` the corrected information,
-   :math:`\Lambda` the prior precision): the information of the data and the prior, with the
-   noise of data and model.
+   the data determine: the Jacobian's signal above its noise (``min_snr``) and the information
+   above ``min_information`` (along the others the estimate stays where the prior holds it,
+   instead of following the surrogate's noise); shortened to the bounds and a trust region of
+   ``max_step`` steps :math:`h`, which doubles after an accepted step (up to ``max_trust``) and
+   halves after a rejected one.
+5. **Accept** the step only if the anchor at the new centre is not worse than the old one by
+   more than two standard deviations of the difference of two noisy anchors
+   (:func:`_margin`); a rejected trial's runs stay in the pool and inform :math:`B` along the step.
+6. **Replicate** the pairs at the same centre when the step is at the noise level but some
+   direction looks informative while its Jacobian is still noise (a weakly determined valley
+   between two parameters needs them).
+7. **Stop** when the step is at the noise level, :math:`\sqrt{d^T H d / p} <` ``tol`` with
+   :math:`H = \hat{\mathcal I} + \Lambda` the posterior precision (the natural metric: a step
+   along a weakly determined valley is measured against the valley's own uncertainty), or after
+   ``max_iter`` iterations. The estimate is :math:`\hat\theta = \theta_k + d`; its covariance the
+   sandwich of :func:`_sandwich`: the data on the directions the estimate moved along, with the
+   noise the final centre's replicates show (the rig is one more replay), the prior elsewhere,
+   and what the prior's spread there does to the rest. When the iterations ran out first the
+   estimate is the last centre, and the last step :math:`d d^T` joins its covariance.
 
 :func:`map_fit` knows nothing of the device: it evaluates a callable ``(theta, seed) -> r``.
 """
@@ -460,6 +461,10 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     theta_hat = np.clip(theta + d, prob.lower, prob.upper) if converged else theta
     reps = np.concatenate([C, _centre(prob, theta, k + 1, s, runs)])
     cov, facs = _sandwich(info, noise, keep, lam, B, _scale(prob), reps, s.centre_runs, prob.groups)
+    if not converged:
+        # the iterations ran out while the estimate was still moving: the last step's size is
+        # part of its uncertainty
+        cov = cov + np.outer(d, d)
     history.append({"noise_factors": facs})
     return MapFit(theta=theta_hat, cov=cov, B=B, info=info, chi2=float(a @ a), n=len(a),
                   rho=float(np.mean(rhos)),

@@ -140,7 +140,7 @@ class Settings:
     conflict_z: float = 3.0
     claim_residual: float = 0.5
     candidate_iterations: int = 4
-    joint_iterations: int = 4
+    joint_iterations: int = 6
     estimate: dict = dataclasses.field(default_factory=dict)
     whirl_phase_min_deg: float = 10.0
     whirl_ratio_max: float = 5.0
