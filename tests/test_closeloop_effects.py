@@ -83,12 +83,14 @@ def _get(cfg, key):
 def effective_truth(scenario: dict, delta: dict, y_gain: float = 1.0) -> dict:
     """The rig's parameters as the model can see them: its DCM calibration (a noisy procedure on
     the rig's own physics) against the model's noise-free one at the same physics sets what
-    the calibration gain and offset errors must be. A y sensor gain G scales the calibrated
-    estimate, y_ss = G (g y_raw + o): it *is* a calibration error, of gain G g and offset G o."""
-    rig_cfg = scenario["cfg"]
+    the calibration gain and offset errors must be. Both calibrations run with the rig's effects
+    (a cross-coupling or a dead time changes what the clamped calibration reads, in the rig and
+    in a model that has found the effect). A y sensor gain G scales the calibrated estimate,
+    y_ss = G (g y_raw + o): it *is* a calibration error, of gain G g and offset G o."""
+    rig_cfg, eff = scenario["cfg"], scenario["effects"]
     rig_cal = simulate(rig_cfg, duration_s=0.005, excitation=scenario["excitation"], start=scenario["start"],
-                       seed=scenario["seed"], progress=False).meta["selfsensing_calibration"]
-    model_cal = simulate(rig_cfg, arrays={"r_y": np.zeros(400)}, calibration_noise=False,
+                       seed=scenario["seed"], effects=eff, progress=False).meta["selfsensing_calibration"]
+    model_cal = simulate(rig_cfg, arrays={"r_y": np.zeros(400)}, calibration_noise=False, effects=eff,
                          progress=False).meta["selfsensing_calibration"]
     out = dict(delta)
     g, o = "selfsensing.calibration_gain_error", "selfsensing.calibration_offset_error_m"

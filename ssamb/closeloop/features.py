@@ -38,6 +38,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import fft as sfft
 from scipy import signal
 
 from .spectra import Frame, _bands
@@ -197,7 +198,7 @@ def _period_factors(layout: Layout, x: np.ndarray, diag_bins: np.ndarray, diag_d
         return np.ones(nv), np.ones(nv)
     x = x - _line_components(fr, x, layout.lines_hz)      # a line off the grid spreads over periods
     per = x.reshape(nv, P, fr.n_period)
-    Yp = np.fft.rfft(per, axis=2)[:, :, layout.bins // P]           # V x P x K
+    Yp = sfft.rfft(per, axis=2)[:, :, layout.bins // P]           # V x P x K
     s2 = P * np.sum(np.abs(Yp - Yp.mean(axis=1, keepdims=True)) ** 2, axis=1) / (P - 1)
     nu = 2 * (P - 1)
     med = (1 - 2 / (9 * nu)) ** 3
@@ -258,31 +259,44 @@ def _line_components(frame: Frame, x: np.ndarray, lines_hz) -> np.ndarray:
     return out
 
 
-def line_phasors(frame: Frame, x: np.ndarray, lines_hz) -> np.ndarray:
+def line_phasors(frame: Frame, x: np.ndarray, lines_hz, X: np.ndarray | None = None) -> np.ndarray:
     r"""Phasors of sinusoids at ``lines_hz`` in the rows of ``x`` (V x n), DFT units.
 
-    On-grid frequencies of a periodic frame are the DFT bins themselves; any other frequency is
-    a least-squares fit of :math:`a\cos\omega t + b\sin\omega t` (time from the record start)
-    with the part synchronous with a periodic excitation removed from data and regressors,
-    returned as :math:`\tfrac n2 (a - jb)`.
+    On-grid frequencies of a periodic frame are the DFT bins themselves (of ``X``, the rows'
+    real FFT, when given); any other frequency is a least-squares fit of
+    :math:`a\cos\omega t + b\sin\omega t` (time from the record start) with the part
+    synchronous with a periodic excitation removed from data and regressors, returned as
+    :math:`\tfrac n2 (a - jb)`. With :math:`P` the projector that removes that part and
+    :math:`D` the regressors, :math:`(PD)^+ P x = (PD)^+ x`: one cached :math:`2 \times n`
+    pseudo-inverse per frame and frequency serves every replay.
     """
     out = np.zeros((len(lines_hz), x.shape[0]), complex)
-    if not len(lines_hz):
-        return out
-    t = frame.t_s
-    X = None
     for i, f in enumerate(lines_hz):
         k = f / frame.df_hz
         if frame.periodic and abs(k - round(k)) < 1e-9:
             if X is None:
-                X = np.fft.rfft(x, axis=1)
+                X = sfft.rfft(x, axis=1)
             out[i] = X[:, int(round(k))]
             continue
-        w = 2 * np.pi * f * t
-        D = np.column_stack([_desync(frame, np.cos(w)), _desync(frame, np.sin(w))])
-        coef, *_ = np.linalg.lstsq(D, np.stack([_desync(frame, r) for r in x]).T, rcond=None)
+        coef = _offgrid_pinv(frame, float(f)) @ x.T
         out[i] = 0.5 * frame.n * (coef[0] - 1j * coef[1])
     return out
+
+
+_PINV: dict = {}
+
+
+def _offgrid_pinv(frame: Frame, f: float) -> np.ndarray:
+    """Pseudo-inverse of the de-synchronised regressors :math:`(\cos\omega t, \sin\omega t)` of
+    one frame (cached: the frame's samples and the frequency are the key)."""
+    key = (frame.fs_hz, frame.i0, frame.n, frame.periodic, frame.n_period, f)
+    if key not in _PINV:
+        if len(_PINV) >= 64:          # 2 x n floats each: about 100 MB at most for 2 s records
+            _PINV.clear()
+        w = 2 * np.pi * f * frame.t_s
+        D = np.column_stack([_desync(frame, np.cos(w)), _desync(frame, np.sin(w))])
+        _PINV[key] = np.linalg.pinv(D, rcond=np.finfo(float).eps * frame.n)
+    return _PINV[key]
 
 
 def _desync(frame: Frame, x: np.ndarray) -> np.ndarray:
@@ -318,10 +332,11 @@ def _values(layout: Layout, x: np.ndarray, seg: slice) -> Features:
     """The feature values of :func:`_periodic` or :func:`_welch`, without their noise."""
     fr = layout.frame
     empty = np.zeros((0,))
-    lines = line_phasors(fr, x, layout.lines_hz)
     if fr.periodic:
-        X = np.fft.rfft(x, axis=1)
+        X = sfft.rfft(x, axis=1)
+        lines = line_phasors(fr, x, layout.lines_hz, X)
         return Features(np.real(X[:, 0]), X[:, layout.bins].T, lines, empty, empty, empty)
+    lines = line_phasors(fr, x, layout.lines_hz)
     nper, kb = layout.nperseg, layout.bins
     Y = _welch_segments(x, nper)[:, :, kb]
     Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
@@ -331,9 +346,9 @@ def _values(layout: Layout, x: np.ndarray, seg: slice) -> Features:
 
 def _periodic(layout: Layout, x: np.ndarray, fl2: np.ndarray, factors: tuple | None) -> Features:
     fr = layout.frame
-    X = np.fft.rfft(x, axis=1)
+    X = sfft.rfft(x, axis=1)
     # the noise is read without the lines the excitation lacks (their leakage is not noise)
-    Xn = np.fft.rfft(x - _line_components(fr, x, layout.lines_hz), axis=1) if layout.lines_hz else X
+    Xn = sfft.rfft(x - _line_components(fr, x, layout.lines_hz), axis=1) if layout.lines_hz else X
     usable = fr.noise_mask.copy()
     usable[0] = False
     C = _band_cov(Xn, usable)
@@ -341,7 +356,7 @@ def _periodic(layout: Layout, x: np.ndarray, fl2: np.ndarray, factors: tuple | N
     Z = Xn[:, low]
     cov_dc = np.real(Z @ Z.conj().T) / max(len(low), 1)
     kl = [min(int(round(f / fr.df_hz)), X.shape[1] - 1) for f in layout.lines_hz]
-    f = Features(dc=np.real(X[:, 0]), bins=X[:, layout.bins].T, lines=line_phasors(fr, x, layout.lines_hz),
+    f = Features(dc=np.real(X[:, 0]), bins=X[:, layout.bins].T, lines=line_phasors(fr, x, layout.lines_hz, X),
                  cov_dc=cov_dc + np.diag(fr.n * fl2), cov_bins=C[layout.bins] + np.diag(fr.n * fl2)[None],
                  cov_lines=(C[kl] if kl else np.zeros((0,) + C.shape[1:])) + np.diag(fr.n * fl2)[None])
     if factors is None:
@@ -355,7 +370,7 @@ def _welch_segments(x: np.ndarray, nper: int) -> np.ndarray:
     starts = range(0, x.shape[-1] - nper + 1, step)
     w = signal.windows.hann(nper, sym=False)
     segs = np.stack([x[..., s:s + nper] - x[..., s:s + nper].mean(axis=-1, keepdims=True) for s in starts])
-    return np.fft.rfft(segs * w, axis=-1)
+    return sfft.rfft(segs * w, axis=-1)
 
 
 def _welch(layout: Layout, x: np.ndarray, seg: slice, fl2: np.ndarray) -> Features:
@@ -382,7 +397,7 @@ def _welch(layout: Layout, x: np.ndarray, seg: slice, fl2: np.ndarray) -> Featur
     cov_dc = np.real(np.mean(P[:, :, 1:4], axis=-1)) * fr.n * fr.fs_hz / 2.0 + np.diag(fr.n * fl2)
     lines = line_phasors(fr, x, layout.lines_hz)
     if layout.lines_hz:
-        Xf = np.fft.rfft(x * fr.window, axis=1)
+        Xf = sfft.rfft(x * fr.window, axis=1)
         Cl = _band_cov(Xf, np.ones(Xf.shape[1], bool))
         kl = [min(int(round(f / fr.df_hz)), Xf.shape[1] - 1) for f in layout.lines_hz]
         cov_lines = Cl[kl] * (fr.n / fr.w2) + np.diag(fr.n * fl2)[None]

@@ -19,7 +19,11 @@ when the candidate explains what the base missed: a one-sided test. Per view, th
 residual excess over the noise (:math:`\chi^2_v - n_v`) that the candidate removes is averaged
 over the views that stood clearly above the noise (:math:`\chi^2_v >` ``above_noise`` :math:`n_v`);
 a view is made worse when its :math:`\chi^2` grows by more than ``worse_sigma`` standard
-deviations of the difference of two noisy predictions' :math:`\chi^2` (:math:`\sqrt{12 n_v}`). The BIC change on the fitting
+deviations of the difference of two noisy predictions' :math:`\chi^2`. With :math:`\bar r` the
+view's expected residual and :math:`e_0, e_1` the predictions' unit-variance noise,
+:math:`\chi^2_1 - \chi^2_0 = -2\bar r^T(e_1 - e_0) + \|e_1\|^2 - \|e_0\|^2` has variance
+:math:`8\|\bar r\|^2 + 4 n_v`: :math:`\sqrt{12 n_v}` at the noise, growing with a residual the
+base leaves (:math:`\|\bar r\|^2 \approx \max(\chi^2_0, n_v)`). The BIC change on the fitting
 part, :math:`\chi^2_1 - \chi^2_0 + p \ln N`, is the penalty for parameters.
 """
 from __future__ import annotations
@@ -115,7 +119,7 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
         per_view[v] = {"chi2_before": x0, "chi2_after": x1, "n": n, "explained": frac}
         if x0 > settings.above_noise * n:
             fracs.append(frac)
-        if x1 - x0 > settings.worse_sigma * math.sqrt(12 * n):
+        if x1 - x0 > settings.worse_sigma * math.sqrt(4 * n + 8 * max(x0, n)):
             worse.append(v)
     f0, f1 = _scaled(cmp, cmp.fit, base, pred, overrides, effects)
     dbic = float(f1 @ f1 - f0 @ f0 + n_params * math.log(len(f0)))

@@ -16,8 +16,8 @@ held-out data, then refit everything jointly.
    from the residual. When no single candidate passes, the leading pairs are fitted jointly (two
    effects can hide each other). When no signature is significant yet the held-out residual is not
    noise, every library effect that needs no hint from a signature is fitted and judged the same
-   way (the report says so). The passing candidate with the largest held-out improvement joins
-   the base. The search stops when the held-out residual is consistent with noise, no candidate
+   way (the report says so). The passing candidate that explains the largest mean share of the
+   views' held-out excess joins the base (the chi-square it removes breaks ties). The search stops when the held-out residual is consistent with noise, no candidate
    passes, or ``max_effects`` are in.
 3. **Joint refit**: the calibrated parameters and the accepted effects' parameters together,
    from their current values (an effect absorbs what a parameter took before it was found; the
@@ -165,6 +165,7 @@ def _entry(cand: Candidate, rnd: int, repolish: bool = False) -> dict:
             "se": dict(zip(cand.model.params, fit.se[cand.n_free:].tolist())) if fit else {},
             "sims": fit.evaluations if fit else 0, "iterations": fit.iterations if fit else 0,
             "holdout_z": hs.get("z"), "explained": hs.get("explained", 0.0), "views_worse": hs.get("views_worse", []),
+            "per_view": hs.get("per_view", {}),
             "delta_bic": hs.get("delta_bic"), "claims": hs.get("claims", {}), "passed": cand.passed,
             "reasons": list(cand.reasons)}
 
@@ -266,7 +267,10 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
         passing = _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_contact, rejected, progress)
         if not passing:
             break
-        best = max(passing, key=lambda c: c.score["delta_chi2"])
+        # the candidate that explains the most of every view's excess, not the one that removes
+        # the most chi-square from the largest view (a gain can shrink a big residual in one view
+        # that another effect explains in all): the mean share, the chi-square as tie-break
+        best = max(passing, key=lambda c: (c.score["explained"], c.score["delta_chi2"]))
         for sl, m in zip(best.slices(), best.models):
             th = best.fit.theta[sl]
             se = best.fit.se[sl]
