@@ -99,13 +99,19 @@ def effective_truth(scenario: dict, delta: dict, y_gain: float = 1.0) -> dict:
     return out
 
 
+def _relative(cfg: dict, key: str, value: float, se: bool = False) -> float:
+    """A parameter's value (or standard error) relative to nominal (absolute for a zero nominal)."""
+    nominal = _get(cfg, key)
+    if nominal == 0:
+        return value
+    return value / abs(nominal) if se else value / nominal - 1
+
+
 def check_parameters(rep: dict, truth: dict, cfg: dict) -> list[str]:
     """Every identified parameter within a third of its perturbation or two standard errors."""
     bad = []
     for key, p in rep["parameters"].items():
-        nominal = _get(cfg, key)
-        est = p["value"] / nominal - 1 if nominal != 0 else p["value"]
-        se = p["se"] / abs(nominal) if nominal != 0 else p["se"]
+        est, se = _relative(cfg, key, p["value"]), _relative(cfg, key, p["se"], se=True)
         err = abs(est - truth[key])
         if not (err <= abs(truth[key]) / 3 or err <= 2 * se):
             bad.append(f"{key}: estimate {est:+.4g}, truth {truth[key]:+.4g}, se {se:.2g}")
@@ -232,7 +238,10 @@ def run_draw(tmp: Path, cfg: dict, k: int, with_effect: bool) -> dict:
     elif rep["effects"]:
         fails.append(f"effects declared on a draw without: {[e['name'] for e in rep['effects']]}")
     fails += check_errors(rep)
+    est = {key: [_relative(cfg, key, p["value"]), truth[key], _relative(cfg, key, p["se"], se=True)]
+           for key, p in rep["parameters"].items()}
     return {"draw": k, "effect": true, "perturbation": delta, "failures": fails, "summary": rep["summary"],
+            "estimates": est, "effects_found": rep["effects"],
             "identified": sorted(rep["parameters"]), "found": [e["name"] for e in rep["effects"]],
             "simulations": rep["timing"]["simulations"]}
 

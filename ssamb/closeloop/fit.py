@@ -49,7 +49,10 @@ class Base:
     ``free`` are calibrated parameters (:class:`~ssamb.closeloop.calibration.ParameterSpec`)
     refitted with every candidate from their values ``theta_free`` (tolerance units of the
     specs): an effect whose signature a parameter shares (a static load in y and the rotor's
-    weight) is fitted with it, not on a base that has already absorbed part of it.
+    weight) is fitted with it, not on a base that has already absorbed part of it. ``spare``
+    are the other calibrated parameters (not identified), at ``theta_spare``: a combination of
+    them can still have absorbed part of an effect, so a candidate that fails only by making a
+    view worse is refitted with them free too (:meth:`widened`).
     """
 
     overrides: dict
@@ -57,6 +60,21 @@ class Base:
     pred: dict = field(default_factory=dict, repr=False)
     free: list = field(default_factory=list)
     theta_free: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    spare: list = field(default_factory=list)
+    theta_spare: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def widened(self) -> "Base":
+        """The same model with the spare parameters free as well (listed after the free ones)."""
+        return Base(self.overrides, self.effects, self.pred, list(self.free) + list(self.spare),
+                    np.concatenate([self.theta_free, self.theta_spare]))
+
+    def after(self, cand: "Candidate") -> "Base":
+        """The base with an accepted candidate (fitted on this base or on :meth:`widened`)."""
+        nf = len(self.free)
+        th = cand.fit.theta[: cand.n_free]
+        spare = th[nf:] if cand.n_free > nf else self.theta_spare
+        return Base(cand.overrides, list(self.effects) + cand.effects, cand.pred, self.free, th[:nf],
+                    self.spare, spare)
 
 
 @dataclass

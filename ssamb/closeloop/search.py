@@ -224,6 +224,12 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
         cand = _try(cmp, base, [name], ev, rec, settings, est, 10_000 * (rnd + 1) + 100 * k, ft, measured_contact,
                     progress)
         info["candidates"].append(_entry(cand, rnd))
+        if cand.fit is not None and base.spare and all(r.startswith("makes ") for r in cand.reasons):
+            # rejected only for a view it made worse: the unidentified parameters may hold part
+            # of the effect; refit with every calibrated parameter free
+            cand = _try(cmp, base.widened(), [name], ev, rec, settings, est,
+                        10_000 * (rnd + 1) + 100 * k + 50, ft, measured_contact, progress)
+            info["candidates"].append({**_entry(cand, rnd), "all_parameters_free": True})
         if cand.passed:
             passing.append(cand)
         else:
@@ -277,8 +283,7 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
             out.accepted.append({"name": m.name, "model": m, "theta": th, "se": se, "holdout": best.score,
                                  "evidence": ev[m.name], "round": rnd, "pred": best.pred,
                                  "without_signature": bool(info.get("fallback"))})
-        base = Base(best.overrides, list(base.effects) + best.effects, best.pred, base.free,
-                    best.fit.theta[: best.n_free])
+        base = base.after(best)
     return base
 
 
@@ -348,12 +353,13 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     # nominal: it was absorbing what an effect should explain)
     free = [i for i, sp in enumerate(specs)
             if cal.ident["per_parameter"][sp.key]["identified"] and sp.key not in cal.conflicts] if specs else []
-    theta_free = np.array([cal.theta[i] for i in free])
-    base = Base(base_ov, [], cmp.prediction(base_ov), [specs[i] for i in free], theta_free)
+    spare = [i for i in range(len(specs)) if i not in free and specs[i].key not in cal.conflicts]
+    base = Base(base_ov, [], cmp.prediction(base_ov), [specs[i] for i in free], cal.theta[free],
+                [specs[i] for i in spare], cal.theta[spare])
     base = _effect_search(cmp, base, settings, est, out, measured_contact, progress)
     if out.accepted or cal.conflicts:
         start = cal.theta.copy()
-        start[free] = base.theta_free
+        start[free], start[spare] = base.theta_free, base.theta_spare
         fit, theta_cal, ov, eff, models, cuts, ident = _joint(cmp, cal, out.accepted, settings, est, progress, start)
         for a, lo, hi in zip(out.accepted, cuts[:-1], cuts[1:]):
             a["theta"], a["se"] = fit.theta[lo:hi], fit.se[lo:hi]
