@@ -151,7 +151,10 @@ def report_entries(model: EffectModel, theta: np.ndarray, se: np.ndarray, signif
     name = model.name
     if name in ("sensor_delay", "sensor_gain"):
         axes = model.fixed["axes"]
-        keep = [i for i in range(len(axes)) if significant[i]] or list(range(len(axes)))
+        # significant axes; else the axes the data determine (a standard error of 1e4 marks
+        # a direction the data left to its prior); else all
+        keep = ([i for i in range(len(axes)) if significant[i]]
+                or [i for i in range(len(axes)) if np.isfinite(se[i]) and se[i] < 1e3] or list(range(len(axes))))
         ax = tuple(axes[i] for i in keep)
         key = "delay_s" if name == "sensor_delay" else "gain"
         return _merge_axes(name, key, ax, theta[keep], se[keep], 0.0 if name == "sensor_delay" else 1.0)

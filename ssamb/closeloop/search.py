@@ -181,27 +181,28 @@ def _round(cmp, base, settings, rnd, rejected):
     return info, order, ft, ev
 
 
-def _effect_axes(name: str, rec, base: Base) -> tuple:
+def _effect_axes(name: str, rec, settings) -> tuple:
     """The axes an effect is fitted on. A y sensor gain scales the calibrated DCM estimate,
     y_ss = G (g y_raw + o): it is the DCM calibration's own error (gain G g, offset G o), so
-    when the calibration gain is a calibrated parameter the effect acts on x only."""
+    when the calibration gain is calibrated (free, or at nominal while it conflicts: the joint
+    refit frees it again) the effect acts on x only."""
     axes = rec.excited_axes
-    if name == "sensor_gain" and any(sp.key == "selfsensing.calibration_gain_error" for sp in base.free):
+    if name == "sensor_gain" and "selfsensing.calibration_gain_error" in settings.calibration:
         axes = tuple(a for a in axes if a == "x")
     return axes
 
 
 def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, progress) -> Candidate:
     t1 = time.perf_counter()
-    if any(not _effect_axes(n, rec, base) for n in names if n in ("sensor_gain", "sensor_delay")):
+    if any(not _effect_axes(n, rec, settings) for n in names if n in ("sensor_gain", "sensor_delay")):
         return Candidate(tuple(names), [], None, None, [], reasons=[
             "no axis to fit it on: x is not excited and the y sensor gain is the DCM calibration's own error"])
     models = []
     for n in names:
         hints = dict(ev[n].hints)
         if n == "sensor_gain":
-            hints["axes"] = [a for a in (hints.get("axes") or rec.excited_axes) if a in _effect_axes(n, rec, base)]
-        models.append(effect_model(n, hints, _effect_axes(n, rec, base)))
+            hints["axes"] = [a for a in (hints.get("axes") or rec.excited_axes) if a in _effect_axes(n, rec, settings)]
+        models.append(effect_model(n, hints, _effect_axes(n, rec, settings)))
     import dataclasses
 
     cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations))
