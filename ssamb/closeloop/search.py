@@ -225,7 +225,7 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
         cand = _try(cmp, base, [name], ev, rec, settings, est, 10_000 * (rnd + 1) + 100 * k, ft, measured_contact,
                     progress)
         info["candidates"].append(_entry(cand, rnd))
-        if cand.fit is not None and base.spare and all(r.startswith("makes ") for r in cand.reasons):
+        if cand.fit is not None and base.spare and cand.reasons and all(r.startswith("makes ") for r in cand.reasons):
             # rejected only for a view it made worse: the unidentified parameters may hold part
             # of the effect; refit with every calibrated parameter free
             cand = _try(cmp, base.widened(), [name], ev, rec, settings, est,
