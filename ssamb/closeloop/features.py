@@ -287,7 +287,7 @@ _PINV: dict = {}
 
 
 def _offgrid_pinv(frame: Frame, f: float) -> np.ndarray:
-    """Pseudo-inverse of the de-synchronised regressors :math:`(\cos\omega t, \sin\omega t)` of
+    r"""Pseudo-inverse of the de-synchronised regressors :math:`(\cos\omega t, \sin\omega t)` of
     one frame (cached: the frame's samples and the frequency are the key)."""
     key = (frame.fs_hz, frame.i0, frame.n, frame.periodic, frame.n_period, f)
     if key not in _PINV:
