@@ -161,3 +161,11 @@ def test_map_fit_degenerate_starts_do_not_crash(case):
     fit = map_fit(prob, EstimateSettings(max_iter=5))
     assert np.all(np.isfinite(fit.theta)) and np.all((fit.theta >= lower) & (fit.theta <= upper))
     assert not np.any(np.isnan(fit.cov))
+
+
+def test_condition_of_a_singular_information_is_unbounded():
+    """Singular values down to round-off give no condition number; a regular set gives
+    the ratio of the largest to the smallest (here 1e3 / 1e-1)."""
+    from ssamb.closeloop.calibration import _condition
+    assert _condition(np.array([1e3, 1.0, 1e-14])) is None
+    assert _condition(np.array([1e3, 1.0, 1e-1])) == pytest.approx(1e4)

@@ -227,8 +227,18 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
         terms = {names[i]: float(v[i]) for i in np.argsort(-np.abs(v)) if abs(v[i]) >= 0.1}
         combos.append({"weights": terms, "known_to_fraction_of_tolerance": float(1.0 / sv[k])})
     return {"per_parameter": per, "rank": int(np.sum(sv >= 3.0)), "n_parameters": len(names),
-            "condition": float(sv[0] / max(sv[-1], 1e-300)) if len(sv) else 1.0,
+            "condition": _condition(sv),
             "singular_values": sv.tolist(), "combinations": combos}
+
+
+def _condition(sv: np.ndarray) -> float | None:
+    """Condition number of the singular values ``sv`` (descending); None when the smallest is
+    at round-off level of the largest (numerically singular: a ratio like 1e304 means nothing)."""
+    if not len(sv):
+        return 1.0
+    if sv[-1] <= len(sv) * np.finfo(float).eps * sv[0]:
+        return None
+    return float(sv[0] / sv[-1])
 
 
 def _reason(i: int, names: tuple, c: np.ndarray, alone: float, se: float, tol: float, ratio: float) -> str:

@@ -50,7 +50,7 @@ def _calibration(C) -> list:
                   caption="Nominal parameters calibrated from the data (MAP with the tolerances as priors; "
                           "standard errors from the Jacobian at the optimum and the replays' own spread)"),
             f"Sensitivity matrix: rank {cal.get('rank')} of {cal.get('n_parameters')} (singular values of the "
-            f"information per tolerance at least 3), condition {_fmt(cal.get('condition'))}. Identified combinations: "
+            f"information per tolerance at least 3), condition {_fmt(cal.get('condition')) if cal.get('condition') is not None else 'unbounded (numerically singular)'}. Identified combinations: "
             f"{combos or 'none'}. The calibration alone removes {100 * cal.get('error_reduction', 0.0):.0f} % of the "
             "nominal model's held-out residual excess."]
 
