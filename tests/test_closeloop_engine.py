@@ -169,3 +169,44 @@ def test_condition_of_a_singular_information_is_unbounded():
     from ssamb.closeloop.calibration import _condition
     assert _condition(np.array([1e3, 1.0, 1e-14])) is None
     assert _condition(np.array([1e3, 1.0, 1e-1])) == pytest.approx(1e4)
+
+
+def test_a_parameter_on_its_bound_does_not_freeze_the_others():
+    """Three parameters, the first starting on its lower bound with the data pulling it further
+    out: it stays on the bound, and the other two reach their truth (the whole step used to be
+    shortened to zero, freezing a joint refit)."""
+    N = 120
+    rng = np.random.default_rng(2)
+    B, e = 10.0 * rng.standard_normal((N, 3)), rng.standard_normal(N)     # whitened: unit data noise
+    truth = np.array([-0.5, 0.4, -0.3])
+
+    def evaluate(theta, seed):
+        return B @ (np.asarray(theta) - truth) - e + 0.3 * np.random.default_rng(seed).standard_normal(N)
+
+    prob = Problem(("a", "b", "c"), np.zeros(3), np.full(3, np.inf), np.full(3, 0.05), np.array([0.0, -1.0, -1.0]),
+                   np.ones(3), evaluate)
+    fit = map_fit(prob, EstimateSettings(max_iter=8))
+    assert fit.theta[0] == 0.0
+    # with a held at 0 instead of -0.5 the best b, c are the least-squares fit of the rest
+    bc = np.linalg.lstsq(B[:, 1:], B[:, 1:] @ truth[1:] + B[:, 0] * truth[0] + e, rcond=None)[0]
+    assert np.allclose(fit.theta[1:], bc, atol=3 * fit.se[1:]), (fit.theta, bc, fit.se)
+    assert np.all(fit.se[1:] < 0.02)
+
+
+@pytest.mark.parametrize("structure, lo, hi", [(0.0, 0.999, 1.15), (2.0, 1.9, 2.4)])
+def test_misfit_scales_the_reported_errors(structure, lo, hi):
+    """A residual with structure the model lacks (rms 2 on unit noise: reduced chi-square about
+    5) raises the reported standard errors by about sqrt(5); at the noise it leaves them."""
+    N = 400
+    rng = np.random.default_rng(8)
+    B, e = 8.0 * rng.standard_normal((N, 2)), rng.standard_normal(N)
+    struct = structure * math.sqrt(2) * np.sin(0.37 * np.arange(N))
+
+    def evaluate(theta, seed):
+        return B @ np.asarray(theta) - e - struct + 0.2 * np.random.default_rng(seed).standard_normal(N)
+
+    prob = Problem(("a", "b"), np.zeros(2), np.full(2, np.inf), np.full(2, 0.05), np.full(2, -1.0), np.ones(2),
+                   evaluate, groups=[np.arange(N)])
+    fit = map_fit(prob, EstimateSettings())
+    ratio = fit.se_misfit / fit.se
+    assert np.all((ratio > lo) & (ratio < hi)), ratio

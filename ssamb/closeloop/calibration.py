@@ -175,7 +175,7 @@ def calibrate_model(cmp, specs: list[ParameterSpec], effects: list, settings: Es
 
 
 def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio: float,
-                    cov: np.ndarray | None = None) -> dict:
+                    cov: np.ndarray | None = None, cov_noise: np.ndarray | None = None) -> dict:
     r"""Which parameters the data identify, and why not the others (module docstring).
 
     Parameters
@@ -190,6 +190,10 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
     cov : numpy.ndarray, optional
         Posterior covariance of the estimate (:attr:`MapFit.cov`, which holds the noise the
         replicates measured); default :math:`(\mathcal I + \Lambda)^{-1}`.
+    cov_noise : numpy.ndarray, optional
+        When ``cov`` is the covariance with the model's misfit (:attr:`MapFit.cov_misfit`),
+        the one at the noise alone: a parameter identified by this one but not by ``cov`` is
+        reported as lost to the misfit.
 
     Returns
     -------
@@ -219,6 +223,10 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
         per[name] = {"identified": ident, "se": float(se[i]), "se_alone": float(alone[i]), "tolerance": tol,
                      "partner": names[j] if len(names) > 1 else None, "correlation": float(c[j]) if len(names) > 1 else 0.0,
                      "reason": None if ident else _reason(i, names, c, alone[i], se[i], tol, ratio)}
+        if not ident and cov_noise is not None and math.isfinite(tol) and np.sqrt(max(cov_noise[i, i], 0.0)) <= ratio * tol:
+            per[name]["reason"] = (f"the model misfits the data beyond their noise: with the misfit it is known only "
+                                   f"to +-{_pct(se[i])} (+-{_pct(float(np.sqrt(cov_noise[i, i])))} at the noise alone; "
+                                   f"tolerance +-{_pct(tol)})")
     combos = []
     for k in range(len(sv)):
         if sv[k] < 3.0:

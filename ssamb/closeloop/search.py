@@ -328,7 +328,8 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
 
     joint_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.joint_iterations))
     fit = map_fit(prob, joint_est, (lambda m: _log(progress, "  joint " + m)) if progress else None)
-    ident = identifiability(fit.info, prob.prior_sd, names, settings.identifiable_ratio, cov=fit.cov)
+    ident = identifiability(fit.info, prob.prior_sd, names, settings.identifiable_ratio, cov=fit.cov_misfit,
+                            cov_noise=fit.cov)
     merged = dict(cal.ident)
     merged["per_parameter"] = {**cal.ident["per_parameter"], **ident["per_parameter"]}
     theta_cal[free] = fit.theta[: len(free)]
@@ -366,7 +367,7 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         start[free], start[spare] = base.theta_free, base.theta_spare
         fit, theta_cal, ov, eff, models, cuts, ident = _joint(cmp, cal, out.accepted, settings, est, progress, start)
         for a, lo, hi in zip(out.accepted, cuts[:-1], cuts[1:]):
-            a["theta"], a["se"] = fit.theta[lo:hi], fit.se[lo:hi]
+            a["theta"], a["se"] = fit.theta[lo:hi], fit.se_misfit[lo:hi]
         out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
         out.overrides, out.effects = ov, eff
         out.final = cmp.prediction(ov, eff)
@@ -374,7 +375,11 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         out.consistent, out.failures = ok, fails
     else:
         out.overrides, out.effects, out.final = cal.overrides(), [], out.calibrated
-        out.joint = {"fit": cal.fit, "ident": cal.ident, "theta_cal": cal.theta}
+        ident = cal.ident
+        if cal.fit is not None:           # the final model: its errors with the misfit the data show
+            ident = identifiability(cal.fit.info, np.array([sp.prior_sd for sp in specs]), tuple(sp.key for sp in specs),
+                                    settings.identifiable_ratio, cov=cal.fit.cov_misfit, cov_noise=cal.fit.cov)
+        out.joint = {"fit": cal.fit, "ident": ident, "theta_cal": cal.theta}
     for a in out.accepted:
         sig = (np.abs(a["theta"]) > 3 * a["se"]) & (np.abs(a["theta"]) > 1e-3 * a["model"].step)
         a["entries"] = report_entries(a["model"], a["theta"], a["se"], sig)
