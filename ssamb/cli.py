@@ -4,7 +4,7 @@ Commands (binding interface, ARCHITECTURE.md):
 
 * ``simulate --experiment NAME [--config FILE] [--set KEY=VALUE ...] --out FILE.npz``
 * ``rig SCENARIO.yaml --out FILE.npz``
-* ``closeloop DATA.npz|DATA.csv --out DIR [--config FILE]``
+* ``closeloop DATA.npz|DATA.csv --out DIR [--config FILE] [--workers N]``
 
 Every command exits with status 2 and a one-line reason on bad input (an
 :class:`ssamb.errors.InputError`: a config, scenario, effect or data-file error), and writes no
@@ -14,6 +14,7 @@ traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -47,6 +48,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("data", help="measured data (.npz, or .csv with a .json sidecar)")
     p.add_argument("--out", required=True, help="output directory (closeloop.json and figures)")
     p.add_argument("--config", default=None, help="config of the nominal model")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes for the independent replays (default: the CPUs available; the result does not depend on it)")
     p.add_argument("--quiet", action="store_true")
     return ap
 
@@ -72,11 +75,21 @@ def _cmd_rig(args) -> None:
     run_scenario(args.scenario, args.out, progress=not args.quiet)
 
 
+def _cpus() -> int:
+    """CPUs this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def _cmd_closeloop(args) -> None:
     from .closeloop import run_closeloop
     from .closeloop.report import findings_text
 
-    rep = run_closeloop(args.data, args.out, config=args.config, progress=not args.quiet)
+    from .errors import InputError
+
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers {args.workers}: must be at least 1")
+    workers = args.workers or _cpus()
+    rep = run_closeloop(args.data, args.out, config=args.config, progress=not args.quiet, workers=workers)
     print("\n".join(findings_text(rep)))
 
 

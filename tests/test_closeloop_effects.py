@@ -36,6 +36,9 @@ EXC = {"kind": "multisine", "point": "position", "axis": "both", "amplitude_m": 
 NOISE = {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 11}
 SEED = int(os.environ.get("SSAMB_TEST_SEED", "20260101"))
 SLOW = bool(os.environ.get("SSAMB_SLOW"))
+#: processes for the analysis's replays (the result does not depend on it; SSAMB_WORKERS=1 when
+#: the suite itself runs in several processes)
+WORKERS = int(os.environ.get("SSAMB_WORKERS", min(2, len(os.sched_getaffinity(0)))))
 pytestmark = pytest.mark.slow
 #: the calibratable parameters and how far a rig's may lie from the model's (the acceptance's
 #: +-5 %; the calibration offset +-5 um)
@@ -193,7 +196,7 @@ def test_sensor_delay_on_a_rig_with_other_parameters(tmp_path, cfg):
           "magnetics.iron_conductivity_s_per_m": 2.0e6 * 0.9, "selfsensing.calibration_gain_error": 1.02}
     true = {"name": "sensor_delay", "axis": "x", "delay_s": 3.0e-5}
     arrays, meta, scenario = rig(tmp_path, [true], ov)
-    rep = analyse(arrays, meta, cfg)
+    rep = analyse(arrays, meta, cfg, workers=WORKERS)
     assert not check_effect(true, rep), (check_effect(true, rep), rep["summary"])
     delta = {k: (v / _get(cfg, k) - 1) for k, v in ov.items()}
     truth = effective_truth(scenario, {**{k: 0.0 for k in PERTURB}, **delta})
@@ -208,14 +211,14 @@ def test_unbalance_on_a_harmonic_of_the_excitation_period(tmp_path, cfg):
     f = 150.0
     true = {"name": "unbalance", "speed_hz": f, "mass_ecc_kgm": 3.0 / (2 * math.pi * f) ** 2, "phase_rad": 1.1}
     arrays, meta, _ = rig(tmp_path, [true], name="harmonic")
-    rep = analyse(arrays, meta, cfg)
+    rep = analyse(arrays, meta, cfg, workers=WORKERS)
     assert rep["ranking"] and rep["ranking"][0] == "unbalance", rep["ranking"]
     assert not check_effect(true, rep), rep["summary"]
 
 
 def test_noise_alone_declares_no_effect(tmp_path, cfg):
     arrays, meta, _ = rig(tmp_path, [], name="null", noise={**NOISE, "seed": SEED % 1000})
-    rep = analyse(arrays, meta, cfg)
+    rep = analyse(arrays, meta, cfg, workers=WORKERS)
     assert rep["effects"] == [], rep["summary"]
 
 
@@ -231,7 +234,7 @@ def run_draw(tmp: Path, cfg: dict, k: int, with_effect: bool) -> dict:
     seed = int(rng.integers(1, 10_000))
     arrays, meta, scenario = rig(tmp, [true] if true else [], ov, name=f"d{k}", exc={**EXC, "seed": seed},
                                  noise={**NOISE, "seed": seed + 1})
-    rep = analyse(arrays, meta, cfg)
+    rep = analyse(arrays, meta, cfg, workers=WORKERS)
     # what a y sensor gain the analysis did not name leaves to the calibration parameters
     g_true = true["gain"] if true and true["name"] == "sensor_gain" and true["axis"] in ("y", "both") else 1.0
     g_found = next((e.get("per_axis", {}).get("y", e["params"])["gain"] for e in rep["effects"]
@@ -285,7 +288,7 @@ def test_randomized_false_alarms(tmp_path, cfg):
     found = []
     for k in range(k0, k0 + n):
         arrays, meta, _ = rig(tmp_path, [], name=f"n{k}", exc={**EXC, "seed": 100 + k}, noise={**NOISE, "seed": 200 + k})
-        found.append([e["name"] for e in analyse(arrays, meta, cfg)["effects"]])
+        found.append([e["name"] for e in analyse(arrays, meta, cfg, workers=WORKERS)["effects"]])
     rate = sum(bool(f) for f in found) / n
     _suite_out(tmp_path, "false_alarms").write_text(json.dumps({"rate": rate, "found": found}, indent=1))
     assert rate <= cfg["closeloop"]["alpha_accept"], found

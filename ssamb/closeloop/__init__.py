@@ -38,7 +38,8 @@ log = logging.getLogger(__name__)
 __all__ = ["analyse", "run_closeloop", "DataError"]
 
 
-def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", progress: bool = False):
+def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", progress: bool = False,
+             workers: int = 1):
     from ..io import validate_measured
     from .calibration import parameter_specs
     from .comparison import Comparison
@@ -56,7 +57,7 @@ def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data",
     rec = record_from_arrays(arrays, meta, float(cfg["controller"]["fs_hz"]), source)
     split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s,
                        settings.min_holdout_s, source)
-    replay = Replayer(cfg, rec)
+    replay = Replayer(cfg, rec, workers=int(workers))
     cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings.floor_position_m,
                            settings.floor_current_a)
     cmp.calibrate_noise()
@@ -71,7 +72,7 @@ def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data",
     return report, {"record": rec, "split": split, "search": result, "comparison": cmp, "settings": settings}
 
 
-def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping) -> dict:
+def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, workers: int = 1) -> dict:
     """Analyse measured data against the nominal model of ``cfg``; return ``closeloop.json`` as a dict.
 
     Parameters
@@ -83,6 +84,9 @@ def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping) -> dict:
     cfg : mapping
         Validated configuration of the nominal model (its ``closeloop`` section, if any, sets
         the analysis; see :class:`ssamb.closeloop.settings.Settings`).
+    workers : int
+        Processes that run the independent replays (a fit's design, a prediction's seeds); the
+        result does not depend on it.
 
     Raises
     ------
@@ -90,10 +94,10 @@ def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping) -> dict:
         Bad data (missing columns, non-finite values, ``fs_hz`` inconsistent with ``t`` or
         with the model, too short to split).
     """
-    return _analyse(arrays, meta, cfg)[0]
+    return _analyse(arrays, meta, cfg, workers=workers)[0]
 
 
-def run_closeloop(data_path, out_dir, config=None, progress: bool = True) -> dict:
+def run_closeloop(data_path, out_dir, config=None, progress: bool = True, workers: int = 1) -> dict:
     """Analyse a data file and write ``out_dir/closeloop.json`` and figures.
 
     Everything is computed and drawn into a fresh temporary directory beside ``out_dir``,
@@ -113,6 +117,8 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True) -> dic
         configuration.
     progress : bool
         Progress messages on stderr.
+    workers : int
+        Processes for the independent replays (:func:`analyse`).
 
     Returns
     -------
@@ -130,7 +136,7 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True) -> dic
     check_replaceable(out_dir, owned)
     cfg = dict(config) if isinstance(config, Mapping) else load_config(config)
     arrays, meta = load_measured(data_path)
-    report, art = _analyse(arrays, meta, cfg, source=str(data_path), progress=progress)
+    report, art = _analyse(arrays, meta, cfg, source=str(data_path), progress=progress, workers=workers)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}."))
     try:

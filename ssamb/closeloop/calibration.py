@@ -167,6 +167,7 @@ def calibrate_model(cmp, specs: list[ParameterSpec], effects: list, settings: Es
         return overrides_of(specs, theta), list(effects)
     prob = calibration_problem(specs, None, seed0=seed0, start=start, groups=cmp.groups(cmp.fit))
     prob.evaluate = cmp.evaluator(cmp.fit, build)
+    prob.evaluate_many = cmp.evaluate_many(cmp.fit, build)
     fit = map_fit(prob, settings, log)
     sd = np.array([s.prior_sd for s in specs])
     ident = identifiability(fit.info, sd, tuple(s.key for s in specs), ratio, cov=fit.cov)

@@ -130,7 +130,7 @@ class Comparison:
         off-grid covariance of the mean of the replays.
         """
         self._nominal = {"overrides": overrides, "effects": tuple(effects)}
-        runs = [views(self.replay.run(effects, None, overrides, s)) for s in self.seeds]
+        runs = [views(r) for r in self.replay.runs(effects, None, overrides, self.seeds)]
         mean = {v: np.mean([r[v] for r in runs], axis=0) for v in runs[0]}
         fac = replicate_factors([features(self.fit.layout, r) for r in runs]) if len(runs) >= 3 else None
         ones = (np.ones(len(COST_VIEWS)), np.ones(len(COST_VIEWS)))
@@ -159,6 +159,12 @@ class Comparison:
             return self.residual(part, self.replay.run(eff, part.n_end, ov, seed, cache=False))
         return evaluate
 
+    def evaluate_many(self, part: Part, build):
+        """``[(theta, seed), ...] -> [residual, ...]``: :meth:`evaluator` over a batch, on the
+        replayer's workers (a fit's design is independent replays)."""
+        evaluate = self.evaluator(part, build)
+        return lambda tasks: self.replay.map(evaluate, tasks)
+
     def noise_factors(self, part: Part, overrides=None, effects=()) -> np.ndarray:
         r"""Per-entry factor of the noise of a prediction's residual over its assumed unit.
 
@@ -168,7 +174,7 @@ class Comparison:
         :math:`\chi^2_{m-1}/(m-1)`; a one-entry group's variance itself), never below 1
         (:func:`ssamb.closeloop.estimate._sandwich` reads replicates the same way).
         """
-        reps = np.array([self.residual(part, self.replay.run(effects, None, overrides, s)) for s in self.seeds])
+        reps = np.array([self.residual(part, r) for r in self.replay.runs(effects, None, overrides, self.seeds)])
         m = len(reps)
         out = np.ones(reps.shape[1])
         if m < 3:

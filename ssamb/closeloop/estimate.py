@@ -132,6 +132,9 @@ class Problem:
     groups : list of index arrays, optional
         Entries of the residual that share a noise level (the views): the replicates' excess
         variance is pooled per group for the sandwich covariance (:func:`_sandwich`).
+    evaluate_many : callable, optional
+        ``[(theta, seed), ...] -> [r, ...]``: a batch of independent evaluations (a design's
+        runs), e.g. on several processes; default ``evaluate`` in turn.
     """
 
     names: tuple
@@ -144,6 +147,13 @@ class Problem:
     start: np.ndarray | None = None
     seed0: int = 1
     groups: list | None = None
+    evaluate_many: Callable | None = None
+
+    def batch(self, tasks: list) -> list:
+        """Evaluate ``[(theta, seed), ...]`` (:attr:`evaluate_many` when given)."""
+        if self.evaluate_many is not None and len(tasks) > 1:
+            return [np.asarray(r, float) for r in self.evaluate_many(tasks)]
+        return [np.asarray(self.evaluate(t, sd), float) for t, sd in tasks]
 
 
 @dataclass
@@ -325,11 +335,8 @@ def _scale(prob: Problem) -> np.ndarray:
 def _centre(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list) -> np.ndarray:
     """``centre_runs`` evaluations at ``theta`` with distinct seeds (added to ``runs``)."""
     base = prob.seed0 + 1000 * k
-    out = []
-    for j in range(s.centre_runs):
-        r = np.asarray(prob.evaluate(theta, base + 500 + j), float)
-        out.append(r)
-        runs.append((theta.copy(), r))
+    out = prob.batch([(theta.copy(), base + 500 + j) for j in range(s.centre_runs)])
+    runs.extend((theta.copy(), r) for r in out)
     return np.array(out)
 
 
@@ -358,11 +365,13 @@ def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: 
         Z = np.concatenate([H[rng.permutation(n)] for _ in range(s.pair_runs)])
     else:
         Z = np.tile(np.eye(p), (s.pair_runs, 1))
+    tasks = []
     for j, z in enumerate(Z):
         for sign in (1.0, -1.0):
             t = np.clip(theta + sign * prob.step * z, prob.lower, prob.upper)
             if np.any(t != theta):
-                runs.append((t, np.asarray(prob.evaluate(t, base + j), float)))
+                tasks.append((t, base + j))
+    runs.extend(zip([t for t, _ in tasks], prob.batch(tasks)))
 
 
 def _margin(n: int, q: float) -> float:

@@ -165,7 +165,7 @@ def _problem(cmp: Comparison, base: Base, model: EffectModel, seed0: int, step_r
                    prior_sd=cat(cp.prior_sd if k else [], np.full(len(model.params), np.inf)),
                    step=cat(cp.step if k else [], model.step), lower=cat(cp.lower if k else [], model.lower),
                    upper=cat(cp.upper if k else [], model.upper), evaluate=cmp.evaluator(cmp.fit, build),
-                   start=cat(base.theta_free, model.theta0), seed0=seed0, groups=cmp.groups(cmp.fit))
+                   evaluate_many=cmp.evaluate_many(cmp.fit, build), start=cat(base.theta_free, model.theta0), seed0=seed0, groups=cmp.groups(cmp.fit))
     return prob, build
 
 

@@ -43,6 +43,9 @@ class Replayer:
         Simulations run and their wall time (for the log).
     cache_size : int
         Results kept (least recently used dropped first).
+    workers : int
+        Processes that run independent replays (:meth:`map`, :meth:`runs`); the results do not
+        depend on it (every replay is seeded).
     """
 
     cfg: Mapping
@@ -50,7 +53,48 @@ class Replayer:
     n_sims: int = 0
     wall_s: float = 0.0
     cache_size: int = 32
+    workers: int = 1
     _cache: dict = field(default_factory=dict, repr=False)
+
+    def map(self, fn, args) -> list:
+        """``[fn(*a) for a in args]`` on :attr:`workers` processes (:func:`ssamb.closeloop.parallel.pmap`),
+        the simulations the children run counted here."""
+        from .parallel import pmap
+
+        args = [tuple(a) for a in args]
+        if self.workers <= 1 or len(args) < 2:
+            return [fn(*a) for a in args]
+
+        def counted(*a):
+            n0, w0 = self.n_sims, self.wall_s
+            out = fn(*a)
+            return out, self.n_sims - n0, self.wall_s - w0
+        res = pmap(counted, args, self.workers)
+        self.n_sims += sum(r[1] for r in res)
+        self.wall_s += sum(r[2] for r in res)
+        return [r[0] for r in res]
+
+    @staticmethod
+    def _key(effects, n, ov, seed) -> str:
+        return json.dumps([effects, n, ov, seed], sort_keys=True, default=float)
+
+    def _store(self, key: str, out: dict) -> None:
+        self._cache[key] = out
+        while len(self._cache) > self.cache_size:
+            self._cache.pop(next(iter(self._cache)))
+
+    def runs(self, effects: Iterable[Mapping] = (), n: int | None = None, overrides: Mapping | None = None,
+             seeds: Iterable[int] = (None,)) -> list:
+        """:meth:`run` for each of ``seeds`` (those not cached on :attr:`workers` processes)."""
+        effects = [dict(e) for e in effects]
+        nn = self.record.n if n is None else int(n)
+        ov = {k: float(v) for k, v in sorted((overrides or {}).items())}
+        seeds = list(seeds)
+        todo = [s for s in dict.fromkeys(seeds) if self._key(effects, nn, ov, s) not in self._cache]
+        if len(todo) > 1 and self.workers > 1:
+            for s, out in zip(todo, self.map(lambda s: self.run(effects, n, overrides, s, cache=False), [(s,) for s in todo])):
+                self._store(self._key(effects, nn, ov, s), out)
+        return [self.run(effects, n, overrides, s) for s in seeds]
 
     def run(self, effects: Iterable[Mapping] = (), n: int | None = None, overrides: Mapping | None = None,
             seed: int | None = None, cache: bool = True) -> dict:
@@ -76,7 +120,7 @@ class Replayer:
         effects = [dict(e) for e in effects]
         n = self.record.n if n is None else int(n)
         ov = {k: float(v) for k, v in sorted((overrides or {}).items())}
-        key = json.dumps([effects, n, ov, seed], sort_keys=True, default=float)
+        key = self._key(effects, n, ov, seed)
         if key in self._cache:
             out = self._cache.pop(key)          # most recently used last
             self._cache[key] = out
@@ -91,11 +135,8 @@ class Replayer:
         logged = apply_acquisition({c: res.data[c] for c in CHANNELS}, self.record.acquisition, self.record.fs_hz)
         out = {c: np.asarray(logged[c], float) for c in CHANNELS}
         out["delevitated"] = res.meta.get("delevitation_s") is not None
-        if not cache:
-            return out
-        self._cache[key] = out
-        while len(self._cache) > self.cache_size:
-            self._cache.pop(next(iter(self._cache)))
+        if cache:
+            self._store(key, out)
         return out
 
     def mean(self, effects: Iterable[Mapping] = (), n: int | None = None, overrides: Mapping | None = None,
@@ -105,7 +146,7 @@ class Replayer:
         Averaging keeps the response the excitation determines and divides the variance of the
         model's own noise by the number of seeds.
         """
-        runs = [self.run(effects, n, overrides, s) for s in seeds]
+        runs = self.runs(effects, n, overrides, seeds)
         out = {c: np.mean([r[c] for r in runs], axis=0) if len(runs) > 1 else runs[0][c] for c in CHANNELS}
         out["delevitated"] = any(r["delevitated"] for r in runs)
         return out

@@ -322,7 +322,8 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
                    step=np.concatenate([cp.step] + [m.step for m in models]),
                    lower=np.concatenate([cp.lower] + [m.lower for m in models]),
                    upper=np.concatenate([cp.upper] + [m.upper for m in models]),
-                   evaluate=cmp.evaluator(cmp.fit, build), start=np.concatenate([theta_cal[free]] + [m.theta0 for m in models]),
+                   evaluate=cmp.evaluator(cmp.fit, build), evaluate_many=cmp.evaluate_many(cmp.fit, build),
+                   start=np.concatenate([theta_cal[free]] + [m.theta0 for m in models]),
                    seed0=900_000, groups=cmp.groups(cmp.fit))
     import dataclasses
 

@@ -33,6 +33,7 @@ rule closeloop:
         "results/benchmarks/closeloop/{dataset}.tsv"
     wildcard_constraints:
         dataset="[A-Za-z0-9_]+",
+    threads: 2  # independent replays on two processes (the result does not depend on it)
     resources:
         mem_mb=3000,
         runtime=30,

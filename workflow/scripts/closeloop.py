@@ -10,4 +10,5 @@ with open(snakemake.log[0], "w") as log:  # noqa: F821
     sys.stderr = log
     cfg = snakemake.params.cfg  # noqa: F821
     validate_config(cfg)
-    run_closeloop(snakemake.input.data, Path(snakemake.output.json).parent, config=cfg, progress=True)  # noqa: F821
+    run_closeloop(snakemake.input.data, Path(snakemake.output.json).parent, config=cfg, progress=True,  # noqa: F821
+                  workers=snakemake.threads)  # noqa: F821
