@@ -177,6 +177,17 @@ def written(tmp_path_factory):
 
 
 @pytest.mark.slow
+def test_the_result_does_not_depend_on_the_workers(written):
+    """The same analysis in one process: byte-identical closeloop.json (``written`` ran on the
+    CPUs available, every replay seeded)."""
+    out = written.parent / "one"
+    args = ["closeloop", str(written.parent / "rig.npz"), "--out", str(out), "--quiet", "--workers", "1",
+            "--config", str(written.parent / "c.yaml")]
+    assert main(args) == 0
+    assert (out / "closeloop.json").read_text() == (written / "closeloop.json").read_text()
+
+
+@pytest.mark.slow
 def test_closeloop_json_binding_format(written):
     rep = json.loads((written / "closeloop.json").read_text())
     assert isinstance(rep["effects"], list) and isinstance(rep["unexplained"], bool)

@@ -423,6 +423,15 @@ def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.nda
     prior mean, the truth is anywhere in the prior: a weakly seen parameter biases a well seen
     one), :math:`G P_c G^T`, :math:`G = H^{-1} B_Q^T B_{Q_c}`.
 
+    **Correlated replay noise.** A replay's own state (hysteresis, the current loops, the
+    self-sensing's rectified noise) moves many entries of a view together, which a diagonal
+    :math:`\Sigma` does not see. The replicates measure it where it matters, projected on the
+    kept directions: :math:`S = (1 + 1/m)\,\mathrm{cov}_s(B_Q^T r_s)`. Where :math:`S` exceeds
+    the diagonal meat beyond its own sampling noise, the excess is added (:func:`_excess`;
+    measured on a rig with every
+    physical parameter at its truth: the DCM calibration gain's standard error 2.5 times the
+    diagonal one, and the estimate 4.7 diagonal standard errors from its truth).
+
     **The Jacobian's own noise.** The estimate is the fixed point of the step with the
     *estimated* Jacobian :math:`\hat B = B + E`: :math:`\hat B^T \hat a = 0` at the residual
     :math:`\hat a` there, which puts it :math:`H^{-1}E^T\hat a` from the fixed point of the true
@@ -464,7 +473,12 @@ def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.nda
     Ls = np.diag((lam * scale ** 2)[idx])
     Bq = (B * scale)[:, idx] @ Q
     Hk = Q.T @ ((info * S)[sub] + Ls) @ Q
-    meat = _psd(Bq.T @ (Bq * sig[:, None]) - float(np.mean(sig)) * Q.T @ (noise * S)[sub] @ Q) + Q.T @ Ls @ Q
+    meat = _psd(Bq.T @ (Bq * sig[:, None]) - float(np.mean(sig)) * Q.T @ (noise * S)[sub] @ Q)
+    # the replicates' noise is correlated across entries (one replay's hysteresis and loop
+    # state move whole views together): projected on the kept directions it may exceed what
+    # the diagonal above gives -- the excess joins the meat
+    P = Bq.T @ (reps - reps.mean(axis=0)).T
+    meat = meat + _excess((1.0 + 1.0 / m) * (P @ P.T) / max(r - 1, 1), meat, r - 1) + Q.T @ Ls @ Q
     if resid is not None:
         meat = meat + float(resid @ resid) / len(resid) * Q.T @ (noise * S)[sub] @ Q
     Hki = np.linalg.inv(0.5 * (Hk + Hk.T)) if len(Hk) else Hk
@@ -480,6 +494,29 @@ def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.nda
     out = np.setdiff1d(np.arange(p), idx)
     cov_s[out, out] = 1e12
     return cov_s * S, facs
+
+
+def _excess(S: np.ndarray, M: np.ndarray, dof: int, level: float = 0.95) -> np.ndarray:
+    r"""What a replicate covariance ``S`` (``dof`` degrees of freedom) holds beyond ``M``.
+
+    In the coordinates where :math:`M = I`, the directions whose variance :math:`\lambda`
+    (eigenvalues of :math:`M^{-1/2} S M^{-1/2}`) exceeds the ``level`` quantile of
+    :math:`\chi^2_{dof}/dof` -- more than ``S``'s own sampling noise would give if ``M`` were
+    right -- contribute :math:`(\lambda - 1)` along them; the others nothing (adding the
+    positive part of noise would inflate every error).
+    """
+    from scipy import stats
+
+    if dof < 1 or not len(M):
+        return np.zeros_like(M)
+    w, V = np.linalg.eigh(0.5 * (M + M.T))
+    w = np.maximum(w, 1e-12 * max(float(w.max()), 1e-300))
+    R = V * np.sqrt(w)                       # M = R R^T
+    Ri = (V / np.sqrt(w)).T
+    lam, U = np.linalg.eigh(Ri @ (0.5 * (S + S.T)) @ Ri.T)
+    keep = lam > stats.chi2.ppf(level, dof) / dof
+    X = R @ U[:, keep]
+    return (X * (lam[keep] - 1.0)) @ X.T
 
 
 def _psd(A: np.ndarray) -> np.ndarray:
