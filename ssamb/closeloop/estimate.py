@@ -436,12 +436,12 @@ def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.nda
     *estimated* Jacobian :math:`\hat B = B + E`: :math:`\hat B^T \hat a = 0` at the residual
     :math:`\hat a` there, which puts it :math:`H^{-1}E^T\hat a` from the fixed point of the true
     :math:`B`. :math:`E` comes from the pairs' replays, independent of :math:`\hat a`, so this adds
-    :math:`(\|\hat a\|^2/N)\,N_B` to the meat (``resid``: :math:`\hat a`, the anchor moved by the
-    last step; :math:`N_B = N\rho(X^TX)^{-1}`, ``noise``). At the noise (:math:`\|\hat a\|^2
-    \approx N`) it gives back the :math:`N_B` the errors-in-variables correction took out of
-    :math:`\hat B^T\Sigma\hat B`; where the model misfits, the Jacobian's noise moves the estimate
-    in proportion to the misfit (measured before this term: calibration gains and offsets with
-    a median |z| of 1.1-1.2 over 40 randomized rigs, where 0.67 is honest).
+    :math:`(\|\hat a\|^2/N)\,N_B` to the meat (:math:`N_B = N\rho(X^TX)^{-1}`, ``noise``). With
+    the model right, :math:`\|\hat a\|^2/N` is the noise level :math:`\bar\sigma^2`, and the term
+    gives back the :math:`\bar\sigma^2 N_B` the errors-in-variables correction took out of
+    :math:`\hat B^T\Sigma\hat B`; with ``misfit`` the residual's own mean square is used
+    (``resid``: :math:`\hat a`, the anchor moved by the last step): where the model misfits, the
+    Jacobian's noise moves the estimate in proportion to the misfit.
     **Misfit** (``misfit=True``). Where the residual at the estimate is larger than the noise
     the replicates measure -- an effect or a parameter the model lacks -- the data's scatter
     about the model is that residual: a group's variance is its mean square over the
@@ -479,8 +479,11 @@ def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.nda
     # the diagonal above gives -- the excess joins the meat
     P = Bq.T @ (reps - reps.mean(axis=0)).T
     meat = meat + _excess((1.0 + 1.0 / m) * (P @ P.T) / max(r - 1, 1), meat, r - 1) + Q.T @ Ls @ Q
-    if resid is not None:
-        meat = meat + float(resid @ resid) / len(resid) * Q.T @ (noise * S)[sub] @ Q
+    # the Jacobian's noise times the residual: at the noise level, or at the misfit
+    ms = float(np.mean(sig))
+    if misfit and resid is not None:
+        ms = max(ms, float(resid @ resid) / len(resid))
+    meat = meat + ms * Q.T @ (noise * S)[sub] @ Q
     Hki = np.linalg.inv(0.5 * (Hk + Hk.T)) if len(Hk) else Hk
     Pc = np.linalg.pinv(Qc.T @ Ls @ Qc, rcond=1e-6, hermitian=True)
     # the complement sits at the prior mean while the truth is anywhere in the prior: through the
