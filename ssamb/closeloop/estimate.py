@@ -436,13 +436,16 @@ def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.nda
     *estimated* Jacobian :math:`\hat B = B + E`: :math:`\hat B^T \hat a = 0` at the residual
     :math:`\hat a` there, which puts it :math:`H^{-1}E^T\hat a` from the fixed point of the true
     :math:`B`. :math:`E` comes from the pairs' replays, independent of :math:`\hat a`, so this adds
-    :math:`(\|\hat a\|^2/N)\,N_B` to the meat (:math:`N_B = N\rho(X^TX)^{-1}`, ``noise``). With
-    the model right, :math:`\|\hat a\|^2/N` is the noise level :math:`\bar\sigma^2`, and the term
-    gives back the :math:`\bar\sigma^2 N_B` the errors-in-variables correction took out of
-    :math:`\hat B^T\Sigma\hat B`; with ``misfit`` the residual's own mean square is used
-    (``resid``: :math:`\hat a`, the anchor moved by the last step): where the model misfits, the
-    Jacobian's noise moves the estimate in proportion to the misfit.
-    **Misfit** (``misfit=True``). Where the residual at the estimate is larger than the noise
+    :math:`(\|\hat a\|^2/N)\,N_B` to the meat (:math:`N_B = N\rho(X^TX)^{-1}`, ``noise``;
+    ``resid``: :math:`\hat a`, the anchor moved by the last step; at least the noise level
+    :math:`\bar\sigma^2`, where the term gives back the :math:`\bar\sigma^2 N_B` the
+    errors-in-variables correction took out of :math:`\hat B^T\Sigma\hat B`): where the model
+    misfits, the Jacobian's noise moves the estimate in proportion to the misfit. In the
+    reported covariance only (``misfit``).
+    **Misfit** (``misfit=True``: the covariance reported with the final model, which also
+    holds the correlated replay noise above; a search's intermediate fits use the diagonal
+    noise model, whose identifiability -- what the data inform -- decides which parameters
+    are refitted with each candidate). Where the residual at the estimate is larger than the noise
     the replicates measure -- an effect or a parameter the model lacks -- the data's scatter
     about the model is that residual: a group's variance is its mean square over the
     residual's degrees of freedom, :math:`\|\hat a_g\|^2/(n_g(1 - k/N))` with :math:`k` the
@@ -478,12 +481,13 @@ def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.nda
     # state move whole views together): projected on the kept directions it may exceed what
     # the diagonal above gives -- the excess joins the meat
     P = Bq.T @ (reps - reps.mean(axis=0)).T
-    meat = meat + _excess((1.0 + 1.0 / m) * (P @ P.T) / max(r - 1, 1), meat, r - 1) + Q.T @ Ls @ Q
+    if misfit:
+        meat = meat + _excess((1.0 + 1.0 / m) * (P @ P.T) / max(r - 1, 1), meat, r - 1)
+    meat = meat + Q.T @ Ls @ Q
     # the Jacobian's noise times the residual: at the noise level, or at the misfit
-    ms = float(np.mean(sig))
-    if misfit and resid is not None:
-        ms = max(ms, float(resid @ resid) / len(resid))
-    meat = meat + ms * Q.T @ (noise * S)[sub] @ Q
+    if misfit:
+        ms = float(np.mean(sig)) if resid is None else max(float(np.mean(sig)), float(resid @ resid) / len(resid))
+        meat = meat + ms * Q.T @ (noise * S)[sub] @ Q
     Hki = np.linalg.inv(0.5 * (Hk + Hk.T)) if len(Hk) else Hk
     Pc = np.linalg.pinv(Qc.T @ Ls @ Qc, rcond=1e-6, hermitian=True)
     # the complement sits at the prior mean while the truth is anywhere in the prior: through the

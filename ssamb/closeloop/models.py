@@ -43,6 +43,11 @@ class EffectModel:
         ``theta -> list of effect specs`` for :func:`ssamb.sim.simulate`.
     fixed : dict
         What the parameterisation holds fixed (the axes of a sensor effect).
+    grid : tuple of numpy.ndarray
+        Coarse start points to try before the fit (:func:`ssamb.closeloop.fit.fit_candidate`)
+        for an effect whose signature gives no size: its response is far from linear over
+        its range (a dead time of 1.5 us moves the currents by orders of magnitude more than
+        its finite-difference step), so a local fit from zero may not reach it.
     """
 
     name: str
@@ -53,6 +58,7 @@ class EffectModel:
     upper: np.ndarray
     build: Callable
     fixed: dict
+    grid: tuple = ()
 
 
 def effect_model(name: str, hints: dict, excited_axes: tuple) -> EffectModel:
@@ -95,11 +101,14 @@ def effect_model(name: str, hints: dict, excited_axes: tuple) -> EffectModel:
                            np.array([s, s, df]), np.array([-1.0, -1.0, max(f_hz - 5 * df, 0.0)]),
                            np.array([1.0, 1.0, f_hz + 5 * df]), build, {"speed_hz": f_hz})
     if name == "amplifier_deadtime":
+        # dead times of PWM bridges: 0.1-2 us (a grid an octave apart)
         return EffectModel(name, ("deadtime_s",), np.zeros(1), np.full(1, 2.5e-7), np.zeros(1), np.full(1, 9.9e-6),
-                           lambda t: [{"name": "amplifier_deadtime", "deadtime_s": float(t[0])}], {})
+                           lambda t: [{"name": "amplifier_deadtime", "deadtime_s": float(t[0])}], {},
+                           tuple(np.array([v]) for v in (0.25e-6, 0.5e-6, 1e-6, 2e-6, 4e-6)))
     if name == "cross_coupling":
         return EffectModel(name, ("coefficient",), np.zeros(1), np.full(1, 0.03), np.full(1, -0.5), np.full(1, 0.5),
-                           lambda t: [{"name": "cross_coupling", "coefficient": float(t[0])}], {})
+                           lambda t: [{"name": "cross_coupling", "coefficient": float(t[0])}], {},
+                           tuple(np.array([v]) for v in (-0.2, -0.1, -0.05, 0.05, 0.1, 0.2)))
     raise KeyError(f"effect '{name}': not in the library")
 
 

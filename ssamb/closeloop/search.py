@@ -216,14 +216,14 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
 
 
 def _worth_refining(cand: Candidate, settings) -> bool:
-    """Passed, or failed only by a view made worse or by an explained share of at least
-    ``refine_explained`` of the required one with a significant held-out improvement."""
+    """Passed, or failed with a significant held-out improvement only by what a model with
+    other parameters would change: a view made worse, too small a share explained, its own
+    signature left (the base's parameters absorbed part of the effect in the calibration)."""
     if cand.fit is None:
         return False
-    hs = cand.score
-    near = (hs.get("z", 0.0) > float(stats.norm.isf(settings.alpha_accept))
-            and hs.get("explained", 0.0) >= settings.refine_explained * settings.min_explained * len(cand.names))
-    return all(r.startswith("makes ") or (near and r.startswith("explains ")) for r in cand.reasons)
+    significant = cand.score.get("z", 0.0) > float(stats.norm.isf(settings.alpha_accept))
+    fixable = ("makes ", "explains ", "the signature of ")
+    return not cand.reasons or (significant and all(r.startswith(fixable) for r in cand.reasons))
 
 
 def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_contact, rejected, progress):

@@ -113,12 +113,6 @@ class Settings:
     worse_sigma : float
         A candidate makes a view worse when its chi-square grows by more than this many standard
         deviations of the difference of two noisy predictions' chi-square.
-    refine_explained : float
-        A candidate whose held-out improvement is significant but which explains less than
-        ``min_explained`` -- at least this share of it -- or makes a view worse is refined
-        with every calibrated parameter free and judged again (an unidentified parameter may
-        hold part of its effect: a 15 N static load explained 18 % with the coil resistance
-        held 2.8 tolerances off).
     contact_fraction : float
         The measured rotor touched the backup bearing when its radial position reached this
         fraction of the clearance (a candidate whose model touches is then not implausible).
@@ -157,7 +151,6 @@ class Settings:
     deadtime_ratio_max: float = 3.0
     above_noise: float = 2.0
     worse_sigma: float = 3.0
-    refine_explained: float = 0.5
     contact_fraction: float = 0.95
 
 
