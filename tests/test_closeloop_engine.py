@@ -257,3 +257,17 @@ def test_coarse_start_of_a_dead_time(truth):
     prob = Problem(m.params, m.theta0, np.full(1, np.inf), m.step, m.lower, m.upper, evaluate, start=m.theta0.copy())
     start = _coarse_start(prob, m, 0)
     assert start[0] == (truth if truth is not None else 0.0)
+
+
+def test_excess_of_a_replicate_covariance():
+    """Replicates with 5x the variance the diagonal model gives along one direction (and the
+    same along the other): the excess is 4x that direction's variance, nothing elsewhere; a
+    covariance within its sampling noise (chi-square 95 % of 7 dof: 2.01) adds nothing."""
+    from ssamb.closeloop.estimate import _excess
+
+    M = np.array([[2.0, 0.5], [0.5, 1.0]])
+    w, V = np.linalg.eigh(M)
+    R = V * np.sqrt(w)                                       # M = R R^T
+    S = R @ np.diag([5.0, 1.0]) @ R.T
+    assert np.allclose(_excess(S, M, 7), R[:, :1] @ R[:, :1].T * 4.0)
+    assert np.allclose(_excess(1.9 * M, M, 7), 0.0)

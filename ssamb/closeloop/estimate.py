@@ -477,11 +477,11 @@ def _sandwich(info: np.ndarray, noise: np.ndarray, keep: np.ndarray, lam: np.nda
     Bq = (B * scale)[:, idx] @ Q
     Hk = Q.T @ ((info * S)[sub] + Ls) @ Q
     meat = _psd(Bq.T @ (Bq * sig[:, None]) - float(np.mean(sig)) * Q.T @ (noise * S)[sub] @ Q)
-    # the replicates' noise is correlated across entries (one replay's hysteresis and loop
-    # state move whole views together): projected on the kept directions it may exceed what
-    # the diagonal above gives -- the excess joins the meat
-    P = Bq.T @ (reps - reps.mean(axis=0)).T
     if misfit:
+        # the replicates' noise is correlated across entries (one replay's hysteresis and loop
+        # state move whole views together): projected on the kept directions it may exceed what
+        # the diagonal above gives -- the excess joins the meat
+        P = Bq.T @ (reps - reps.mean(axis=0)).T
         meat = meat + _excess((1.0 + 1.0 / m) * (P @ P.T) / max(r - 1, 1), meat, r - 1)
     meat = meat + Q.T @ Ls @ Q
     # the Jacobian's noise times the residual: at the noise level, or at the misfit
@@ -512,17 +512,15 @@ def _excess(S: np.ndarray, M: np.ndarray, dof: int, level: float = 0.95) -> np.n
     right -- contribute :math:`(\lambda - 1)` along them; the others nothing (adding the
     positive part of noise would inflate every error).
     """
-    from scipy import stats
+    from scipy import linalg, stats
 
     if dof < 1 or not len(M):
         return np.zeros_like(M)
-    w, V = np.linalg.eigh(0.5 * (M + M.T))
-    w = np.maximum(w, 1e-12 * max(float(w.max()), 1e-300))
-    R = V * np.sqrt(w)                       # M = R R^T
-    Ri = (V / np.sqrt(w)).T
-    lam, U = np.linalg.eigh(Ri @ (0.5 * (S + S.T)) @ Ri.T)
+    Ms = 0.5 * (M + M.T)
+    Ms = Ms + 1e-12 * max(float(np.trace(Ms)) / len(Ms), 1e-300) * np.eye(len(Ms))
+    lam, V = linalg.eigh(0.5 * (S + S.T), Ms)        # S V = M V diag(lam), V^T M V = I
     keep = lam > stats.chi2.ppf(level, dof) / dof
-    X = R @ U[:, keep]
+    X = Ms @ V[:, keep]
     return (X * (lam[keep] - 1.0)) @ X.T
 
 

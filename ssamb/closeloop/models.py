@@ -106,6 +106,8 @@ def effect_model(name: str, hints: dict, excited_axes: tuple) -> EffectModel:
                            lambda t: [{"name": "amplifier_deadtime", "deadtime_s": float(t[0])}], {},
                            tuple(np.array([v]) for v in (0.25e-6, 0.5e-6, 1e-6, 2e-6, 4e-6)))
     if name == "cross_coupling":
+        # either sign, 5-20 % of the other axis' force (the library's range, issue 6): the
+        # coupling's response is nearly linear, so the grid only saves iterations from zero
         return EffectModel(name, ("coefficient",), np.zeros(1), np.full(1, 0.03), np.full(1, -0.5), np.full(1, 0.5),
                            lambda t: [{"name": "cross_coupling", "coefficient": float(t[0])}], {},
                            tuple(np.array([v]) for v in (-0.2, -0.1, -0.05, 0.05, 0.1, 0.2)))
