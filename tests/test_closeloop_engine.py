@@ -271,3 +271,47 @@ def test_excess_of_a_replicate_covariance():
     S = R @ np.diag([5.0, 1.0]) @ R.T
     assert np.allclose(_excess(S, M, 7), R[:, :1] @ R[:, :1].T * 4.0)
     assert np.allclose(_excess(1.9 * M, M, 7), 0.0)
+
+
+def _candidate(theta, cov, models, n_free):
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.fit import Candidate
+    fit = SimpleNamespace(theta=np.asarray(theta, float), cov=np.asarray(cov, float))
+    return Candidate(tuple(m.name for m in models), models, None, fit, [], n_free=n_free)
+
+
+def test_size_statistic_of_an_effect_against_zero():
+    """Wald statistic over the effect's size parameters only: the refitted parameters before
+    them and an unbalance's spin speed do not count; a size within its error is not an effect."""
+    from ssamb.closeloop.models import effect_model
+    from ssamb.closeloop.search import size_statistic
+
+    load = effect_model("static_load", {"axes": ["x", "y"]}, ("x", "y"))
+    # two free parameters far from zero (they must not count), a load of (3, 4) N with 1 N errors
+    cov = np.diag([1e-6, 1e-6, 1.0, 1.0])
+    w, k = size_statistic(_candidate([0.5, -0.5, 3.0, 4.0], cov, [load], 2))
+    assert k == 2 and w == pytest.approx(25.0)
+    w0, _ = size_statistic(_candidate([0.5, -0.5, -0.02, 0.06], np.diag([1e-6, 1e-6, 0.2 ** 2, 1e12]), [load], 2))
+    assert w0 < 0.1
+    unb = effect_model("unbalance", {"speed_hz": 50.0}, ("x", "y"))
+    w, k = size_statistic(_candidate([2e-5, 0.0, 50.0], np.diag([1e-10, 1e-10, 1e-4]), [unb], 0))
+    assert k == 2 and w == pytest.approx(4.0)
+
+
+def test_joint_refit_starts_where_the_effects_were_found():
+    """A conflicting parameter (its calibration absorbed an effect) starts the joint refit at
+    nominal once effects are found, as in the search's base; the free and spare parameters at
+    their values in the base; without an effect, the calibration itself."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.calibration import Calibration, ParameterSpec
+    from ssamb.closeloop.fit import Base
+    from ssamb.closeloop.search import joint_start
+
+    specs = [ParameterSpec(k, 1.0, True, 0.03) for k in ("a", "b", "c", "d")]
+    fit = SimpleNamespace(theta=np.array([0.01, 0.2, -0.02, 0.005]))
+    cal = Calibration(specs, fit, {}, ["b"])
+    base = Base({}, [], {}, [specs[0]], np.array([0.011]), [specs[2], specs[3]], np.array([-0.03, 0.004]))
+    assert joint_start(cal, base, [0], [2, 3], True).tolist() == [0.011, 0.0, -0.03, 0.004]
+    assert joint_start(cal, base, [0], [2, 3], False).tolist() == [0.011, 0.2, -0.03, 0.004]

@@ -87,7 +87,8 @@ class Settings:
         Gauss-Newton iterations of a candidate's fit (it starts from the calibrated model and the
         evidence's hints, close to its optimum).
     joint_iterations : int
-        Gauss-Newton iterations of the final joint refit (it starts from the fitted values).
+        Most Gauss-Newton iterations of the final joint refit (it starts from the fitted values
+        and stops once converged; not capped by the estimator's ``max_iter``).
     estimate : dict
         Settings of the estimator (:class:`ssamb.closeloop.estimate.EstimateSettings`).
     whirl_phase_min_deg : float
@@ -140,7 +141,7 @@ class Settings:
     conflict_z: float = 3.0
     claim_residual: float = 0.5
     candidate_iterations: int = 4
-    joint_iterations: int = 6
+    joint_iterations: int = 12
     estimate: dict = dataclasses.field(default_factory=dict)
     whirl_phase_min_deg: float = 10.0
     whirl_ratio_max: float = 5.0
