@@ -300,9 +300,9 @@ def test_size_statistic_of_an_effect_against_zero():
 
 
 def test_joint_refit_starts_where_the_effects_were_found():
-    """A conflicting parameter (its calibration absorbed an effect) starts the joint refit at
-    nominal once effects are found, as in the search's base; the free and spare parameters at
-    their values in the base; without an effect, the calibration itself."""
+    """Once effects are found the joint refit starts the identified (free) parameters at their
+    values in the base and every other one -- conflicting or unidentified, either may have
+    absorbed the effect -- at its prior mean; without an effect, from the calibration."""
     from types import SimpleNamespace
 
     from ssamb.closeloop.calibration import Calibration, ParameterSpec
@@ -313,5 +313,5 @@ def test_joint_refit_starts_where_the_effects_were_found():
     fit = SimpleNamespace(theta=np.array([0.01, 0.2, -0.02, 0.005]))
     cal = Calibration(specs, fit, {}, ["b"])
     base = Base({}, [], {}, [specs[0]], np.array([0.011]), [specs[2], specs[3]], np.array([-0.03, 0.004]))
-    assert joint_start(cal, base, [0], [2, 3], True).tolist() == [0.011, 0.0, -0.03, 0.004]
+    assert joint_start(cal, base, [0], [2, 3], True).tolist() == [0.011, 0.0, 0.0, 0.0]
     assert joint_start(cal, base, [0], [2, 3], False).tolist() == [0.011, 0.2, -0.03, 0.004]
