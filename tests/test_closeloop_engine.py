@@ -315,3 +315,24 @@ def test_joint_refit_starts_where_the_effects_were_found():
     base = Base({}, [], {}, [specs[0]], np.array([0.011]), [specs[2], specs[3]], np.array([-0.03, 0.004]))
     assert joint_start(cal, base, [0], [2, 3], True).tolist() == [0.011, 0.0, 0.0, 0.0]
     assert joint_start(cal, base, [0], [2, 3], False).tolist() == [0.011, 0.2, -0.03, 0.004]
+
+
+def test_an_effect_the_joint_refit_leaves_at_zero_is_dropped():
+    """After the joint refit an accepted effect whose size is within its error is no finding: it
+    leaves the accepted list and the final model; a significant one stays, with its values."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.models import effect_model
+    from ssamb.closeloop.search import SearchResult, _drop_null_effects
+
+    load = effect_model("static_load", {"axes": ["x", "y"]}, ("x", "y"))
+    dead = effect_model("amplifier_deadtime", {}, ("x", "y"))
+    # two calibration parameters, then the load (18, -4.6 N +- 0.3 N) and a dead time of 2 +- 10 ns
+    theta = np.array([0.01, -0.02, 18.0, -4.6, 2e-9])
+    cov = np.diag([1e-4, 1e-4, 0.09, 0.09, 1e-16])
+    fit = SimpleNamespace(theta=theta, cov_misfit=cov, se_misfit=np.sqrt(np.diag(cov)))
+    out = SearchResult(accepted=[{"name": "static_load", "round": 0}, {"name": "amplifier_deadtime", "round": 1}])
+    eff = _drop_null_effects(out, fit, [load, dead], np.array([2, 4, 5]), 1e-3, False)
+    assert [a["name"] for a in out.accepted] == ["static_load"]
+    assert eff == [{"name": "static_load", "fx_n": 18.0, "fy_n": -4.6}]
+    assert out.dropped[0]["name"] == "amplifier_deadtime" and out.dropped[0]["size_chi2"] == pytest.approx(0.04)

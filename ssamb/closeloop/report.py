@@ -122,6 +122,13 @@ def _notes(rec, effects, cal_block, not_ident) -> list:
     return notes
 
 
+def _dropped_note(d: dict) -> str:
+    """The note of an effect the joint refit left at zero (:attr:`SearchResult.dropped`)."""
+    values = ", ".join(f"{k} {v:.3g} +- {d['se'][k]:.2g}" for k, v in d["theta"].items())
+    return (f"{d['name']}: accepted in round {d['round']}, but in the joint refit its size is consistent with zero "
+            f"({values}; Wald chi2 {d['size_chi2']:.3g} on {d['k']}): not a finding, left out of the final model")
+
+
 def _summary(effects, unexplained, params) -> str:
     cal = (f"calibrated {len(params)} nominal parameter{'s' if len(params) != 1 else ''}"
            if params else "no nominal parameter identified")
@@ -176,7 +183,7 @@ def build_report(rec, split, search, settings, source: str, timing: dict) -> dic
         "timing": timing,
         "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
     }
-    rep["notes"] = _notes(rec, effects, cal_block, not_ident)
+    rep["notes"] = _notes(rec, effects, cal_block, not_ident) + [_dropped_note(d) for d in search.dropped]
     rep["summary"] = _summary(effects, rep["unexplained"], params)
     return plain(rep)
 
