@@ -19,12 +19,13 @@ held-out data, then refit everything jointly.
    way (the report says so). The passing candidate that explains the largest mean share of the
    views' held-out excess joins the base (the chi-square it removes breaks ties). The search stops when the held-out residual is consistent with noise, no candidate
    passes, or ``max_effects`` are in.
-3. **Joint refit**: the calibrated parameters and the accepted effects' parameters together,
-   from their values in the model the effects were found on (a conflicting parameter at
-   nominal); an effect whose size the joint refit finds consistent with zero
-   (:func:`size_statistic`) is dropped (an effect absorbs what a parameter took before it was found; the
-   parameters' priors decide how shared signatures split), and the identifiability of all of
-   them.
+3. **Joint refit**: the calibrated parameters and the accepted effects' parameters together
+   (an effect absorbs what a parameter took before it was found; the parameters' priors decide
+   how shared signatures split), and the identifiability of all of them. It starts from the
+   model the effects were found on: the identified parameters where the search left them, the
+   others -- conflicting or unidentified -- at their prior mean (:func:`joint_start`). An
+   effect whose size the joint refit finds consistent with zero (:func:`size_statistic`) is
+   dropped from the findings and the final model.
 """
 from __future__ import annotations
 
