@@ -273,7 +273,6 @@ def test_excess_of_a_replicate_covariance():
     assert np.allclose(_excess(1.9 * M, M, 7), 0.0)
 
 
-
 def test_size_statistic_of_an_effect_against_zero():
     """Wald statistic over the effect's size parameters only (an unbalance's spin speed does not
     count); a size within its error is not an effect."""
@@ -287,6 +286,7 @@ def test_size_statistic_of_an_effect_against_zero():
     assert w0 < 1e-10
     w, k = size_statistic(np.array([2e-5, 0.0, 50.0]), np.diag([1e-10, 1e-10, 1e-4]), ["me_cos_kgm", "me_sin_kgm", "speed_hz"])
     assert k == 2 and w == pytest.approx(4.0)
+
 
 def test_joint_refit_starts_where_the_effects_were_found():
     """Once effects are found the joint refit starts the identified (free) parameters at their
