@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ssamb.closeloop.estimate import EstimateSettings, Problem, map_fit
-from ssamb.closeloop.parallel import available, pmap
+from ssamb.closeloop.parallel import Shared, Workers, available, pmap
 
 pytestmark = pytest.mark.skipif(not available(), reason="no fork here")
 
@@ -43,17 +43,75 @@ def test_map_fit_on_two_workers_is_the_same_fit():
     assert one.evaluations == two.evaluations
 
 
-def test_replayer_counts_the_childrens_simulations():
+def test_workers_serve_batches_in_order_with_a_shared_object():
+    """Forked once: two batches with different shared objects, answers in order; the pids show
+    the same two workers served both batches."""
+    import os
+
+    w = Workers(lambda shared, a: (shared["k"] * a, os.getpid()), 2)
+    try:
+        one = w.map([(i,) for i in range(7)], Shared({"k": 3}))
+        two = w.map([(i,) for i in range(5)], Shared({"k": -1}))
+        again = w.map([(i,) for i in range(3)], Shared({"k": 3}))
+    finally:
+        w.close()
+    assert [r[0] for r in one] == [3 * i for i in range(7)]
+    assert [r[0] for r in two] == [-i for i in range(5)] and [r[0] for r in again] == [0, 3, 6]
+    pids = {r[1] for r in one + two + again}
+    assert len(pids) <= 2 and os.getpid() not in pids
+
+
+def test_workers_raise_a_childs_error_and_stay_usable():
+    def f(shared, x):
+        if x == 3:
+            raise ValueError("three")
+        return x
+    w = Workers(f, 2)
+    try:
+        with pytest.raises(ValueError, match="three"):
+            w.map([(i,) for i in range(6)])
+        assert w.map([(i,) for i in range(3)]) == [0, 1, 2]
+    finally:
+        w.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        w.map([(1,), (2,)])
+
+
+def test_a_dead_worker_is_an_error_not_a_hang():
+    import os
+
+    w = Workers(lambda shared, x: os._exit(3) if x == 2 else x, 2)
+    with pytest.raises(RuntimeError, match="worker died"):
+        w.map([(i,) for i in range(4)])
+    assert not w.alive
+
+
+def test_replayer_counts_the_workers_simulations_and_reuses_them():
+    """A fake replay (counters and a pid): the parent's counters hold the workers' simulations;
+    the second batch runs on the workers the first forked; close ends them."""
+    import os
+
     from ssamb.closeloop.replay import Replayer
+
+    class Fake(Replayer):
+        def run(self, effects=(), n=None, overrides=None, seed=None, cache=True):
+            self.n_sims += 1
+            self.wall_s += 0.5
+            return {"seed": seed, "pid": os.getpid()}
 
     class Rec:
         n = 10
 
-    rp = Replayer({}, Rec(), workers=2)
+    rp = Fake({}, Rec(), workers=2)
+    first = rp.map_runs([([], None, {}, s) for s in range(4)], post=_seed_plus_one)
+    second = rp.map_runs([([], None, {}, s) for s in range(4)])
+    assert first == [1, 2, 3, 4] and [r["seed"] for r in second] == [0, 1, 2, 3]
+    assert rp.n_sims == 8 and rp.wall_s == pytest.approx(4.0)
+    assert os.getpid() not in {r["pid"] for r in second}
+    procs = rp._pool[1]._procs
+    rp.close()
+    assert rp._pool is None and not any(p.is_alive() for p in procs)
 
-    def fake(x):
-        rp.n_sims += 1
-        rp.wall_s += 0.5
-        return x + 1
-    assert rp.map(fake, [(i,) for i in range(4)]) == [1, 2, 3, 4]
-    assert rp.n_sims == 4 and rp.wall_s == pytest.approx(2.0)
+
+def _seed_plus_one(out):
+    return out["seed"] + 1

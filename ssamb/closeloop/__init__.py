@@ -58,12 +58,15 @@ def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data",
     split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s,
                        settings.min_holdout_s, source)
     replay = Replayer(cfg, rec, workers=int(workers))
-    cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings.floor_position_m,
-                           settings.floor_current_a)
-    cmp.calibrate_noise()
-    ft = compute_features(rec, cmp.fit.frame, views(rec.channels), views(cmp.prediction()), settings)
-    cmp.set_lines(sorted(ln["f_hz"] for ln in ft.lines))
-    result = search(cmp, specs, settings, progress=progress)
+    try:
+        cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings.floor_position_m,
+                               settings.floor_current_a)
+        cmp.calibrate_noise()
+        ft = compute_features(rec, cmp.fit.frame, views(rec.channels), views(cmp.prediction()), settings)
+        cmp.set_lines(sorted(ln["f_hz"] for ln in ft.lines))
+        result = search(cmp, specs, settings, progress=progress)
+    finally:
+        replay.close()                  # the worker processes
     wall_s = time.perf_counter() - t0
     log.info("%s: %d simulations (%.1f s, %.3f s each); analysis %.1f s", source, replay.n_sims, replay.wall_s,
              replay.wall_s / max(replay.n_sims, 1), wall_s)

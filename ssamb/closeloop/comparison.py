@@ -34,7 +34,7 @@ from .features import (COST_VIEWS, Features, Layout, Whitener, features, make_la
 from .replay import Replayer
 from .spectra import Frame, make_frame
 
-__all__ = ["Comparison", "Part"]
+__all__ = ["Comparison", "Part", "PartResidual"]
 
 
 @dataclass
@@ -51,6 +51,36 @@ class Part:
     def n_end(self) -> int:
         """Samples a replay needs to cover this part."""
         return self.frame.i0 + self.frame.n
+
+
+@dataclass(frozen=True)
+class PartResidual:
+    """The whitened model-minus-data residual over one part, as a picklable callable (what a
+    replay worker applies to the channels it simulated: :meth:`Comparison.evaluate_many`).
+
+    Attributes
+    ----------
+    layout : Layout
+    whitener : Whitener
+    data : Features
+        The measured features of the part.
+    """
+
+    layout: Layout
+    whitener: Whitener
+    data: Features
+
+    @classmethod
+    def of(cls, part: Part) -> "PartResidual":
+        return cls(part.layout, part.whitener, part.data)
+
+    def model_features(self, channels: dict) -> Features:
+        """Feature values of model channels (views or channels; no noise: the whitener is fixed)."""
+        ch = channels if "d_x" in channels else views(channels)
+        return features(self.layout, ch, noise=False)
+
+    def __call__(self, channels: dict) -> np.ndarray:
+        return self.whitener.residual(self.model_features(channels), self.data)
 
 
 @dataclass
@@ -144,26 +174,32 @@ class Comparison:
     def model_features(self, part: Part, channels: dict) -> Features:
         """Feature values of model channels (views or channels) over a part (no noise: the
         whitener is fixed)."""
-        ch = channels if "d_x" in channels else views(channels)
-        return features(part.layout, ch, noise=False)
+        return PartResidual.of(part).model_features(channels)
 
     def residual(self, part: Part, channels: dict) -> np.ndarray:
         """Whitened model-minus-data residual of ``channels`` over ``part``."""
-        return part.whitener.residual(self.model_features(part, channels), part.data)
+        return PartResidual.of(part)(channels)
 
     def evaluator(self, part: Part, build):
         """``(theta, seed) -> residual`` of a single replay whose overrides and effects ``build(theta)``
         returns (``(overrides, effects)``), for :func:`ssamb.closeloop.estimate.map_fit`."""
+        post = PartResidual.of(part)
+
         def evaluate(theta, seed):
             ov, eff = build(theta)
-            return self.residual(part, self.replay.run(eff, part.n_end, ov, seed, cache=False))
+            return post(self.replay.run(eff, part.n_end, ov, seed, cache=False))
         return evaluate
 
     def evaluate_many(self, part: Part, build):
         """``[(theta, seed), ...] -> [residual, ...]``: :meth:`evaluator` over a batch, on the
-        replayer's workers (a fit's design is independent replays)."""
-        evaluate = self.evaluator(part, build)
-        return lambda tasks: self.replay.map(evaluate, tasks)
+        replayer's workers (a fit's design is independent replays; ``build`` runs here, the
+        replays and their residuals in the workers)."""
+        post = PartResidual.of(part)
+
+        def many(tasks):
+            jobs = [(eff, part.n_end, ov, seed) for (ov, eff), seed in ((build(th), s) for th, s in tasks)]
+            return self.replay.map_runs(jobs, post)
+        return many
 
     def noise_factors(self, part: Part, overrides=None, effects=()) -> np.ndarray:
         r"""Per-entry factor of the noise of a prediction's residual over its assumed unit.

@@ -18,8 +18,10 @@ by the number of seeds). The self-sensing calibration of a replay is noise-free
 """
 from __future__ import annotations
 
+import functools
 import json
 import time
+import weakref
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping
 
@@ -55,24 +57,51 @@ class Replayer:
     cache_size: int = 32
     workers: int = 1
     _cache: dict = field(default_factory=dict, repr=False)
+    _pool: tuple | None = field(default=None, repr=False)
+    _finalizer: object = field(default=None, repr=False)
 
-    def map(self, fn, args) -> list:
-        """``[fn(*a) for a in args]`` on :attr:`workers` processes (:func:`ssamb.closeloop.parallel.pmap`),
-        the simulations the children run counted here."""
-        from .parallel import pmap
+    def map_runs(self, tasks, post=None) -> list:
+        """:meth:`run` (uncached) for each ``(effects, n, overrides, seed)`` of ``tasks``, on
+        :attr:`workers` processes, with ``post`` (a picklable callable, e.g. a residual of the
+        channels) applied to each result where it was simulated; the simulations the workers run
+        are counted here.
 
-        args = [tuple(a) for a in args]
-        if self.workers <= 1 or len(args) < 2:
-            return [fn(*a) for a in args]
+        The workers (:class:`ssamb.closeloop.parallel.Workers`) are forked at the first call
+        and kept until :meth:`close` (or a new record): a batch costs its replays, not a fork.
+        """
+        tasks = [tuple(t) for t in tasks]
+        from .parallel import Shared, available
 
-        def counted(*a):
-            n0, w0 = self.n_sims, self.wall_s
-            out = fn(*a)
-            return out, self.n_sims - n0, self.wall_s - w0
-        res = pmap(counted, args, self.workers)
+        if self.workers <= 1 or len(tasks) < 2 or not available():
+            return [_replay(self, post, *t)[0] for t in tasks]
+
+        res = self._workers().map(tasks, Shared(post) if post is not None else None)
         self.n_sims += sum(r[1] for r in res)
         self.wall_s += sum(r[2] for r in res)
         return [r[0] for r in res]
+
+    def _workers(self):
+        from .parallel import Workers
+
+        ident = (id(self.record), id(self.cfg))
+        if self._pool is None or self._pool[0] != ident or not self._pool[1].alive:
+            self.close()
+            # the simulator compiled (or loaded from numba's cache) here first: the workers inherit
+            # this process's machine code, so a replay is the same wherever it runs (a kernel
+            # compiled afresh and one loaded from the cache can part at round-off: README)
+            n0, w0 = self.n_sims, self.wall_s
+            self.run((), min(int(self.record.n), 64), None, 0, cache=False)
+            self.n_sims, self.wall_s = n0, w0
+            pool = Workers(functools.partial(_replay, self), self.workers)
+            self._pool = (ident, pool)
+            self._finalizer = weakref.finalize(self, pool.close)
+        return self._pool[1]
+
+    def close(self) -> None:
+        """End the worker processes (if any; a later :meth:`map_runs` forks new ones)."""
+        if self._pool is not None:
+            self._finalizer()
+            self._pool = None
 
     @staticmethod
     def _key(effects, n, ov, seed) -> str:
@@ -92,7 +121,7 @@ class Replayer:
         seeds = list(seeds)
         todo = [s for s in dict.fromkeys(seeds) if self._key(effects, nn, ov, s) not in self._cache]
         if len(todo) > 1 and self.workers > 1:
-            for s, out in zip(todo, self.map(lambda s: self.run(effects, n, overrides, s, cache=False), [(s,) for s in todo])):
+            for s, out in zip(todo, self.map_runs([(effects, n, overrides, s) for s in todo])):
                 self._store(self._key(effects, nn, ov, s), out)
         return [self.run(effects, n, overrides, s) for s in seeds]
 
@@ -150,3 +179,11 @@ class Replayer:
         out = {c: np.mean([r[c] for r in runs], axis=0) if len(runs) > 1 else runs[0][c] for c in CHANNELS}
         out["delevitated"] = any(r["delevitated"] for r in runs)
         return out
+
+
+def _replay(replayer: Replayer, post, effects, n, overrides, seed) -> tuple:
+    """One uncached replay, ``post`` applied: ``(result, simulations, their wall time)`` (a
+    worker's counters reach the parent this way)."""
+    n0, w0 = replayer.n_sims, replayer.wall_s
+    out = replayer.run(effects, n, overrides, seed, cache=False)
+    return (post(out) if post is not None else out), replayer.n_sims - n0, replayer.wall_s - w0
