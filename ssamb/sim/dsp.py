@@ -46,14 +46,14 @@ import math
 import numba as nb
 import numpy as np
 
-from .magnetics import NO_NRT
+from .magnetics import FASTMATH, NO_NRT
 from .params import (MU0, P_AP, P_COSA, P_FS, P_G0, P_LEQ, P_MUR, P_N, P_PID_AD, P_PID_BD, P_PID_KI_HALF,
                      P_PID_KP, P_SS_ALPHA, P_SS_EST, P_SS_GAIN, P_SS_GATE, P_SS_MIN, P_SS_OFF,
                      P_SS_ORDER, P_SS_R, P_SS_W, P_TPWM, P_UMAX, P_V)
 
 __all__ = ["SS_RING", "adc", "pid_step", "trend_basis", "dcm_update", "selfsensing_state"]
 
-_HOT = dict(cache=True, error_model="numpy", fastmath=True, **NO_NRT)
+_HOT = dict(cache=True, error_model="numpy", fastmath=FASTMATH, **NO_NRT)
 
 SS_RING = 64         # DCM window buffer length (samples)
 
@@ -89,7 +89,7 @@ def trend_basis(window: int, order: int) -> np.ndarray:
     return np.ascontiguousarray(qm.T)
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def adc(v, q, inv_q, cmax):
     """Quantise ``v`` with step ``q`` (``inv_q`` = 1/q; mid-tread) and codes ``-cmax-1 .. cmax``;
     ``q = 0``: ideal."""

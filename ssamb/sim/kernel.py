@@ -46,7 +46,7 @@ import numba as nb
 import numpy as np
 
 from .dsp import D_LAM, D_OUT, D_RAW, adc, dcm_update, pid_step
-from .magnetics import MAX_PLAY, NO_NRT, gap_sum, mmf_update
+from .magnetics import FASTMATH, MAX_PLAY, NO_NRT, gap_sum, mmf_update
 from .params import (MAX_LADDER, P_CC, P_CDELAY, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_CLEAR, P_DEADTIME,
                      P_DELAY_X, P_DELAY_Y, P_DMAX, P_DMIN, P_FORCE_K, P_FS, P_GAIN_X, P_GAIN_Y, P_GE,
                      P_GRAV, P_I_CMAX, P_I_INVQ, P_I_Q, P_IBIAS, P_INV_AP, P_INV_MASS, P_INV_N,
@@ -57,10 +57,10 @@ from .params import (MAX_LADDER, P_CC, P_CDELAY, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, 
 # numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
 # params.py (the P_* layout) or a compiled helper imported from another module, change this
 # file too (or clear __pycache__), or stale machine code with old constants is reused.
-# cache generation: 5 (inlined helpers in dsp.py, magnetics.py)
+# cache generation: 6 (fastmath: contract only, magnetics.FASTMATH)
 
 # helpers called every sample: no numba runtime (see magnetics.NO_NRT), no allocation
-_HOT = dict(cache=True, error_model="numpy", fastmath=True, **NO_NRT)
+_HOT = dict(cache=True, error_model="numpy", fastmath=FASTMATH, **NO_NRT)
 
 # ---- state vector indices ------------------------------------------------------------------
 S_PHI = 0            # 4 fluxes per turn (Wb): ypos, yneg, xpos, xneg
@@ -116,7 +116,7 @@ def new_state():
     return st, np.zeros((4, MAX_PLAY)), np.zeros((4, MAX_LADDER)), np.zeros((2, RING))
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def _phi1(x):
     """(1 - exp(-x))/x, stable near 0."""
     if abs(x) < 1e-2:
@@ -124,7 +124,7 @@ def _phi1(x):
     return -math.expm1(-x) / x
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def _exp_neg(x):
     """``exp(-x)`` for ``x >= 0``: Taylor polynomial of degree 10 in Estrin form for x < 0.5
     (relative error below 2e-11; a third of the latency of the library call), else ``math.exp``."""
@@ -141,7 +141,7 @@ def _exp_neg(x):
     return p01 + x2 * p23 + x4 * (p45 + x2 * p67) + x8 * (p89 + x2 * (1.0 / 3628800.0))
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def _disp(x, y, j):
     """Rotor displacement towards magnet j (ypos, yneg, xpos, xneg)."""
     if j == 0:
@@ -153,7 +153,7 @@ def _disp(x, y, j):
     return -x
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def _segment(ph, v, f0, df, tau, n_den, r_den, ge, inv_den):
     r"""Advance one magnet's flux by ``tau`` at constant coil voltage ``v`` (no eddy currents,
     or the shorted-turn model).
@@ -189,7 +189,7 @@ def _segment(ph, v, f0, df, tau, n_den, r_den, ge, inv_den):
     return ph1, f1, blk, i1p, i2p, iv
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def _segment_ladder(ph, v, f0, df, fe0, h, lad, j, p):
     r"""Advance one magnet by ``h`` at coil voltage ``v`` with the lamination ladder
     (:mod:`ssamb.sim.eddy`): :math:`N i = f_0 + \kappa(\Phi - \Phi_0) + \sum_k c_k(\Phi - \Psi_k)`,
@@ -264,7 +264,7 @@ def _segment_ladder(ph, v, f0, df, fe0, h, lad, j, p):
     return ph1, f1, fe1, blk, i1p, i2p, iv
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def _coil_i(blk, volt, f, fe, ge, vs, n, inv_den):
     r"""Coil current from the carried MMF ``f`` and eddy MMF ``fe``,
     :math:`(g_e v + N(\mathcal F_m + \mathcal F_{eddy}))/(g_e R + N^2)` (``inv_den``
@@ -285,7 +285,7 @@ def _eddy_mmf(st, lad, j, p):
     return fe
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=True)
+@nb.njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def _sym(j, k):
     """Index of entry (j, k) of a symmetric 4x4 matrix stored as its upper triangle (10 values)."""
     a = min(j, k)
@@ -611,7 +611,7 @@ def _control(st, p, ss, rings, k, fs, x_sens, drive, noise_y):
     return x_ctl, y_ctl
 
 
-@nb.njit(cache=True, error_model="numpy", fastmath=True)
+@nb.njit(cache=True, error_model="numpy", fastmath=FASTMATH)
 def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise, npi, out, fine, rip, rip_n):
     """Simulate controller samples ``k0 .. k1-1`` in place; returns the updated ripple count.
 
