@@ -115,3 +115,12 @@ def test_replayer_counts_the_workers_simulations_and_reuses_them():
 
 def _seed_plus_one(out):
     return out["seed"] + 1
+
+
+def test_a_result_that_does_not_pickle_is_an_error_naming_it():
+    w = Workers(lambda shared, x: (lambda: x), 2)
+    try:
+        with pytest.raises(RuntimeError, match="could not return its result"):
+            w.map([(1,), (2,)])
+    finally:
+        w.close()

@@ -117,6 +117,8 @@ def _serve(conn, fn: Callable, inherited: Sequence = ()) -> None:
             out = ("err", i, exc, traceback.format_exc())
         try:
             conn.send(out)
+        except OSError:                        # the parent is gone (or closed the pool mid-batch)
+            break
         except Exception as exc:               # noqa: BLE001 -- e.g. an exception that does not pickle
             conn.send(("err", i, RuntimeError(f"worker could not return its result: {exc!r}"), out[-1]))
     os._exit(0)
