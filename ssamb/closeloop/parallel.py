@@ -120,7 +120,8 @@ def _serve(conn, fn: Callable, inherited: Sequence = ()) -> None:
         except OSError:                        # the parent is gone (or closed the pool mid-batch)
             break
         except Exception as exc:               # noqa: BLE001 -- e.g. an exception that does not pickle
-            conn.send(("err", i, RuntimeError(f"worker could not return its result: {exc!r}"), out[-1]))
+            tb = out[3] if out[0] == "err" else ""
+            conn.send(("err", i, RuntimeError(f"worker could not return its result: {exc!r}"), tb))
     os._exit(0)
 
 
