@@ -286,6 +286,14 @@ def test_size_statistic_of_an_effect_against_zero():
     assert w0 < 1e-10
     w, k = size_statistic(np.array([2e-5, 0.0, 50.0]), np.diag([1e-10, 1e-10, 1e-4]), ["me_cos_kgm", "me_sin_kgm", "speed_hz"])
     assert k == 2 and w == pytest.approx(4.0)
+    # one size parameter determined (34 errors from zero), the other left at an unestimated
+    # parameter's placeholder variance: the effect is not null (a suite draw's unbalance had been
+    # dropped so), and W does not depend on the units
+    th, c = np.array([-1.18e-5, -5.07e-6, 112.0]), np.diag([3.5e-7 ** 2, 4.0, 1e-6])
+    w, k = size_statistic(th, c, ["me_cos_kgm", "me_sin_kgm", "speed_hz"])
+    assert k == 2 and w == pytest.approx((1.18e-5 / 3.5e-7) ** 2, rel=1e-6)
+    scale = np.array([1e6, 1e3, 1.0])
+    assert size_statistic(th * scale, c * np.outer(scale, scale), ["a", "b", "speed_hz"])[0] == pytest.approx(w)
 
 
 def test_joint_refit_starts_where_the_effects_were_found():

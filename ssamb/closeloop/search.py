@@ -179,8 +179,16 @@ def size_statistic(theta: np.ndarray, cov: np.ndarray, params: list) -> tuple[fl
     idx = [i for i, p in enumerate(params) if p != "speed_hz"]
     th = np.asarray(theta, float)[idx]
     c = np.asarray(cov, float)[np.ix_(idx, idx)]
+    # in standard units (the correlation matrix): W does not depend on the parameters' units, and
+    # the pseudo-inverse's cut-off then measures collinearity, not scale. On the covariance itself
+    # a direction the refit left undetermined (the placeholder variance of an unestimated
+    # parameter, ~4 kg^2 m^2 beside 1e-13) cut off the determined one too (measured: an unbalance
+    # 34 standard errors from zero got W = 6e-12 and was dropped)
+    sd = np.sqrt(np.clip(np.diag(c), 0.0, None))
+    ok = sd > 0
+    z, r = th[ok] / sd[ok], c[np.ix_(ok, ok)] / np.outer(sd[ok], sd[ok])
     try:
-        w = float(th @ np.linalg.lstsq(c, th, rcond=1e-12)[0])
+        w = float(z @ np.linalg.lstsq(r, z, rcond=1e-12)[0]) if ok.any() else 0.0
     except np.linalg.LinAlgError:
         w = 0.0
     return (w if np.isfinite(w) else 0.0), len(idx)
