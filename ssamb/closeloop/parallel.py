@@ -134,7 +134,7 @@ class Workers:
         The function the workers run (fixed at fork: a closure is fine; neither it nor what it
         references is pickled). Its first argument is the batch's shared object (or None).
     workers : int
-        Processes (at least 2; :meth:`map` runs in this process when fork is not available).
+        Processes (:meth:`map` runs in this process when fork is not available).
 
     Notes
     -----

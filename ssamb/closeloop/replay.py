@@ -86,9 +86,9 @@ class Replayer:
         ident = (id(self.record), id(self.cfg))
         if self._pool is None or self._pool[0] != ident or not self._pool[1].alive:
             self.close()
-            # the simulator compiled (or loaded from numba's cache) here first: the workers inherit
-            # this process's machine code, so a replay is the same wherever it runs (a kernel
-            # compiled afresh and one loaded from the cache can part at round-off: README)
+            # the simulator compiled (or loaded from numba's cache) here, once, before the fork:
+            # the workers inherit the machine code instead of each compiling it (tens of seconds
+            # on an empty cache); the bits are the same either way (tests/test_sim_bits.py)
             n0, w0 = self.n_sims, self.wall_s
             self.run((), min(int(self.record.n), 64), None, 0, cache=False)
             self.n_sims, self.wall_s = n0, w0
