@@ -24,7 +24,6 @@ import errno
 import json
 import math
 import os
-import platform
 import shutil
 import tempfile
 import warnings
@@ -184,20 +183,11 @@ def read_json(path: str | Path) -> Any:
 
 
 def versions() -> dict:
-    """Versions of the interpreter and the numerical packages, for provenance."""
-    out = {"python": platform.python_version()}
-    for mod in ("numpy", "scipy", "control", "numba", "snakemake", "matplotlib", "sippy_unipi"):
-        try:
-            m = __import__(mod)
-            out[mod] = getattr(m, "__version__", "unknown")
-        except Exception:  # pragma: no cover - optional at runtime
-            try:
-                from importlib.metadata import version
+    """Versions of the interpreter and of every dependency, for provenance
+    (:func:`ssamb.provenance.versions`)."""
+    from .provenance import versions as _versions
 
-                out[mod] = version(mod.replace("_", "-"))
-            except Exception:
-                out[mod] = None
-    return out
+    return _versions()
 
 
 def save_npz(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any] | None = None,

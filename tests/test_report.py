@@ -117,3 +117,66 @@ def test_failed_paper_variant_is_reported_as_failed(ctx):
     tab = sections.identification(c).tables()[1]
     row = next(r for r in tab.rows if r[0] == "amplifier")
     assert row[-1].startswith("failed: LinAlgError")
+
+
+def test_first_page_is_the_paper_against_ours_and_its_four_figures(ctx):
+    assert sections.ORDER[:3] == ("overview", "comparison", "figures")
+    figs = sections.figures(ctx).images()
+    assert [str(Path(i.path).relative_to(ctx.results)) for i in figs] == [
+        "model/fig4.png", "uncertainty/selfsensing_fig7.png", "mu/selfsensing_fig8.png", "validation/fig9.png"]
+    assert [i.caption.split(":")[0] for i in figs] == ["Fig. 4", "Fig. 7", "Fig. 8", "Fig. 9"]
+
+
+def test_configuration_is_a_folded_appendix_at_the_end(ctx):
+    from ssamb.report.render import section_html
+
+    assert sections.ORDER[-1] == "parameters"
+    sec = sections.parameters(ctx)
+    assert sec.collapsed and sec.title.startswith("Appendix")
+    page = section_html(sec)
+    assert page.startswith("<details>") and page.endswith("</details>") and "table1" not in sec.title
+    assert "mass_kg" in page
+
+
+def test_a_failure_is_reported_once_at_the_stage_where_it_began(ctx):
+    reason = "no stable assembled loop among 448 combinations of the candidates"
+    chain = f"Failed: r/select/plant.npz: stage select failed: {reason}"
+    failed = {"select": f"select: {reason}", "assemble": f"assemble: {chain}"}
+    failed.update({f"mu/{c}": f"mu: Failed: r/assemble.json: stage assemble failed: {chain}"
+                   for c in ("selfsensing", "amplifier", "plant", "all")})
+    s = json.loads((ctx.results / "summary.json").read_text())
+    s["paper_way"] = {**(s.get("paper_way") or {}), "failed": failed}
+    (ctx.results / "summary.json").write_text(json.dumps(s))
+    sec = sections.paper_way(load_context(ctx.results, ctx.config_path))
+    cells = [str(c) for t in sec.tables() for r in t.rows for c in r] + [sec.text()]
+    assert sum(c.count(reason) for c in cells) == 1
+    line = next(c for c in cells if reason in c)
+    assert line.startswith("stage select failed") and "mu/all" in line and "assemble" in line
+
+
+def test_provenance_names_the_code_and_every_package_version(ctx):
+    rows = sections.provenance(ctx).tables()[0].rows
+    info = dict((str(k), v) for k, v in rows)
+    assert info["ssamb code"].startswith(("git ", "sha256 "))
+    assert all(v not in (None, "", "unknown") for v in info.values()), info
+    assert {"python", "numpy", "sippy_unipi", "control", "snakemake"} <= set(info)
+
+
+def test_provenance_lists_exactly_the_declared_dependencies():
+    import re as _re
+    import tomllib
+
+    from ssamb.provenance import DEPENDENCIES
+
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    assert sorted(DEPENDENCIES) == sorted(_re.split(r"[<>=!~ ;\[]", d, 1)[0].lower() for d in declared)
+
+
+def test_an_archive_without_git_is_named_by_its_sources_hash(tmp_path):
+    from ssamb.provenance import source_hash, source_revision
+
+    (tmp_path / "a.py").write_text("x = 1\n")
+    first = source_hash(tmp_path)
+    (tmp_path / "a.py").write_text("x = 2\n")
+    assert source_hash(tmp_path) != first and len(first) == 64
+    assert source_revision(tmp_path).startswith(("git ", "sha256 "))

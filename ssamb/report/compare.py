@@ -75,7 +75,7 @@ def _fit_rows(S, P, study) -> list:
 
 def _order_rows(S, P) -> list:
     return [(f"{k} model order", str(PAPER['order_' + k][0]), _f(S["orders"].get(k)), _f(_get(P, "orders", k)),
-             "Configured (identification.<subsystem>.order); the order scan in section 3 is the evidence.")
+             "Configured (identification.<subsystem>.order); the order scan in report section 2 is the evidence.")
             for k in ("plant", "amplifier", "selfsensing")]
 
 
@@ -116,7 +116,7 @@ def _sweep_rows(S, P, study) -> list:
              "the duration and the law (config study.assumptions)."),
             ("delevitation in the sweep, nonlinear", f"just after {PAPER['delevitation_nonlinear_s'][0]} s",
              _event(outs.get("nonlinear")), _f(pdl.get("nonlinear"), 3, " s"),
-             "The critical sweep amplitudes (section 6) say how far from delevitation each model is. "
+             "The critical sweep amplitudes (report section 5) say how far from delevitation each model is. "
              + mover(study, "critical_nonlinear_um", " µm")
              + _which(study, "delevitation")),
             ("delevitation, nominal LTI model", "none", _event(outs.get("nominal LTI")), _f(pdl.get("nominal_lti"), 3, " s"),

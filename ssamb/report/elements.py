@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-__all__ = ["Text", "Table", "Image", "Plot", "Section"]
+__all__ = ["Text", "Table", "Image", "Plot", "Figures", "Section"]
 
 
 @dataclass(frozen=True)
@@ -46,13 +46,25 @@ class Plot:
     caption: str | None = None
 
 
+@dataclass(frozen=True)
+class Figures:
+    """Stage PNGs shown side by side, two per row, each with its caption (the report's first page)."""
+
+    images: Sequence[Image]
+
+
 @dataclass
 class Section:
-    """A titled list of elements; ``level`` is the markdown heading level of the title."""
+    """A titled list of elements.
+
+    ``level`` is the markdown heading level of the title; a ``collapsed`` section is shown
+    folded (an HTML ``<details>`` element the reader opens), as the appendices are.
+    """
 
     title: str
     items: list = field(default_factory=list)
     level: int = 2
+    collapsed: bool = False
 
     def add(self, *items) -> "Section":
         """Append elements (a plain string becomes :class:`Text`); returns the section."""
@@ -60,8 +72,16 @@ class Section:
         return self
 
     def tables(self) -> list[Table]:
+        """The section's tables, in order."""
         return [i for i in self.items if isinstance(i, Table)]
 
     def text(self) -> str:
         """All the markdown of the section, for tests and search."""
         return "\n".join([self.title] + [i.markdown for i in self.items if isinstance(i, Text)])
+
+    def images(self) -> list[Image]:
+        """Every image of the section, those in a :class:`Figures` grid included."""
+        out = []
+        for i in self.items:
+            out += list(i.images) if isinstance(i, Figures) else [i] if isinstance(i, Image) else []
+        return out

@@ -69,7 +69,7 @@ def _paper_variant(est_npz, val_npz, subsystem: str, variant: str, order: int, m
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         reason = f"{type(exc).__name__}: {exc}"
         if out_variant is not None:
-            save_failed(out_variant, reason, {"subsystem": subsystem, "variant": variant})
+            save_failed(out_variant, reason, {"stage": f"identify/{subsystem}", "subsystem": subsystem, "variant": variant})
         return {"variant": variant, "failed": True, "error": reason}
     if out_variant is not None:
         save_model(out_variant, m2)

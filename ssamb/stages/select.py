@@ -59,7 +59,7 @@ def run_select(candidates: Mapping[str, str | Path], validation_npz: str | Path,
                   f"(smallest spectral radius {min(radii, default=float('nan')):.6f})")
         info["error"] = reason
         for k, path in out_models.items():
-            save_failed(path, reason, {"subsystem": k, "selection": "loop"})
+            save_failed(path, reason, {"stage": "select", "subsystem": k, "selection": "loop"})
     else:
         for k, path in out_models.items():
             save_model(path, sel.choice[k].model)

@@ -52,10 +52,10 @@ def _assembly_items(ctx: Context) -> list:
 
 
 def identification(ctx: Context) -> Section:
-    """Section 3: methods, selected models, order evidence, the assembled loop and Fig. 4."""
+    """Section 2: methods, selected models, order evidence, the assembled loop and Fig. 4."""
     c = ctx.config
     est = excitation(experiment(ctx, "identification.estimation"))
-    sec = Section("3. Identification (paper section 3, Fig. 4)").add(
+    sec = Section("2. Identification (paper section 3, Fig. 4)").add(
         f"SIPPY subspace models at {khz(c['controller']['fs_hz'])} from closed-loop data ({est}), validated on an "
         "independent run; no detrending (every model carries its operating point through an affine input). "
         "Methods are compared and the best validation fit is used; the order scan is the evidence for the "
@@ -67,12 +67,12 @@ def identification(ctx: Context) -> Section:
 
 
 def uncertainty(ctx: Context) -> Section:
-    """Section 4: the additive mismatch ETFE and the weights (Fig. 7)."""
+    """Section 3: the additive mismatch ETFE and the weights (Fig. 7)."""
     tol = ctx.config["uncertainty"]["tol_db"]
     what = excitation(experiment(ctx, "uncertainty.experiment"))
     rows = [[k, f"{v['channel']['input']} -> {v['channel']['output']}", v["unit"], v["order"], v["max_dev_db"],
              v["bound_holds"], v["within_tol"]] for k, v in ctx.summary["details"]["weights"].items()]
-    sec = Section("4. Uncertainty weights (paper section 5, Fig. 7)").add(
+    sec = Section("3. Uncertainty weights (paper section 5, Fig. 7)").add(
         f"The same {what} drives the nonlinear simulation and the LTI model; the ETFE of the additive mismatch "
         "(eq. (6)) is read on the excited lines of each subsystem's channel, an envelope is drawn through its "
         f"peaks, and a strictly proper weight is fitted within {tol:g} dB of it and never below the ETFE.",
@@ -82,13 +82,13 @@ def uncertainty(ctx: Context) -> Section:
 
 
 def mu(ctx: Context) -> Section:
-    """Section 5: μ over frequency per case (Fig. 8) and the ISO 14839-3 baseline."""
+    """Section 4: μ over frequency per case (Fig. 8) and the ISO 14839-3 baseline."""
     rows = [[k, v["peak"], v.get("peak_lower"), v["peak_hz"], v["margin"], v["scale_for_unity"],
              v.get("robustly_stable")] for k, v in ctx.summary["details"]["mu"].items()]
     base = [[ax, b["peak_sensitivity"], b["peak_sensitivity_db"], b["peak_hz"], b["iso14839_zone"],
              b["gain_margin_upper_db"], b["gain_margin_lower_db"], b["phase_margin_deg"], b["phase_margin_hz"]]
             for ax, b in ctx.summary["details"]["baseline"].items()]
-    sec = Section("5. μ-analysis (paper sections 4 and 6.2, Fig. 8)").add(
+    sec = Section("4. μ-analysis (paper sections 4 and 6.2, Fig. 8)").add(
         "The generalized plant of Fig. 6 with additive uncertainty W·Δ on one subsystem (or all three, "
         "block-diagonal), closed with the controller (lower LFT); μ of N11 over frequency with our engine "
         "(`ssamb.mu.mussv`, upper and lower bounds). The margin is 1/peak: the loop tolerates every "
@@ -104,7 +104,7 @@ def mu(ctx: Context) -> Section:
 
 
 def validation(ctx: Context) -> Section:
-    """Section 6: the sweep through the nonlinear, nominal and augmented models (Fig. 9)."""
+    """Section 5: the sweep through the nonlinear, nominal and augmented models (Fig. 9)."""
     V = ctx.summary["details"]["validation"]
     sw = V["sweep"]
     rows = [[o["model"], o["delevitates"], o["time_s"], o["sweep_hz"],
@@ -112,7 +112,7 @@ def validation(ctx: Context) -> Section:
              None if o.get("critical_amplitude_m") is None else o["critical_amplitude_m"] * 1e6]
             for o in V["outcomes"]]
     sweep = {"kind": "sweep", **sw}
-    return Section("6. Sweep validation (paper section 6, Fig. 9)").add(
+    return Section("5. Sweep validation (paper section 6, Fig. 9)").add(
         f"The {excitation(sweep)} drives the nonlinear simulation, the nominal LTI model and the augmented "
         "models (self-sensing model + W·Δ with Δ = +1, −1 and a first-order all-pass). Delevitation is the "
         f"rotor reaching the backup-bearing clearance ({um(V['clearance_m'])}). Because an LTI model responds "

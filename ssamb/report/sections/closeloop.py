@@ -63,7 +63,7 @@ def closeloop(ctx: Context) -> Section | None:
     C = read_json(d / "closeloop.json")
     v, data = C["validation"], C["data"]
     ev = [(n, e["score_chi2"], e["log10_p"], e["significant"], e["signature"]) for n, e in C["evidence"].items()]
-    sec = Section("7. Close the loop with measured data (beyond the paper)").add(
+    sec = Section("6. Close the loop with measured data (beyond the paper)").add(
         "The paper's conclusion is that an LTI uncertainty model cannot explain nonlinear behaviour. Here the "
         "residual between measured data and the nominal nonlinear model is explained with physics: replay the "
         "model with the recorded excitation, calibrate the nominal parameters a rig never matches exactly, "

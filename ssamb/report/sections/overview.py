@@ -1,20 +1,21 @@
-"""Report sections around the chain: overview, the paper-versus-reproduction table, parameters,
-the nonlinear simulation and provenance."""
+"""Report sections around the chain: overview, the paper-versus-reproduction table and the
+paper's four figures (the first page), the nonlinear simulation, provenance, and the
+configuration (an appendix, folded)."""
 from __future__ import annotations
 
 import csv
-import subprocess
 
 import numpy as np
 
-from ...io import load_npz, versions
+from ...io import load_npz
+from ...provenance import source_revision, versions
 from ..compare import HEADER, comparison_rows
 from ..config_table import config_rows
 from ..context import Context, experiment
 from ..describe import excitation, khz
-from ..elements import Plot, Section, Table
+from ..elements import Figures, Image, Plot, Section, Table
 
-__all__ = ["overview", "comparison", "parameters", "simulation", "provenance"]
+__all__ = ["overview", "comparison", "figures", "parameters", "simulation", "provenance"]
 
 
 def overview(ctx: Context) -> Section:
@@ -42,12 +43,30 @@ def comparison(ctx: Context) -> Section:
         Table(HEADER, comparison_rows(ctx.summary, ctx.study)))
 
 
+#: the paper's figures and the stage PNGs that reproduce them (the first page of the report)
+PAPER_FIGURES = (
+    ("model/fig4.png", "Fig. 4: the nonlinear simulation and the closed-loop LTI model, one record"),
+    ("uncertainty/selfsensing_fig7.png", "Fig. 7: the self-sensing mismatch ETFE and its uncertainty weight"),
+    ("mu/selfsensing_fig8.png", "Fig. 8: μ over frequency, uncertainty in the self-sensing"),
+    ("validation/fig9.png", "Fig. 9: the sweep through the nonlinear, nominal and augmented models"),
+)
+
+
+def figures(ctx: Context) -> Section:
+    """The paper's Figs. 4, 7, 8 and 9 as this run made them, side by side."""
+    return Section("The paper's figures, reproduced", level=3).add(
+        Figures([Image(ctx.path(*p.split("/")), cap) for p, cap in PAPER_FIGURES]),
+        "Sections 2-5 below show them with their numbers, and the other subsystems' weights and μ cases.")
+
+
 def parameters(ctx: Context) -> Section:
-    """Table 1 and every modelling assumption with the reason written beside it in the config."""
+    """Appendix (folded): Table 1 and every modelling assumption with the reason written beside
+    it in the config."""
     t1, assumptions = config_rows(ctx.config_path)
-    return Section("1. Parameters").add(
-        "Table 1 of the paper and every modelling assumption the paper leaves open, as used by this run "
-        "(from the config, with the one-line reason written beside each assumption).",
+    sec = Section("Appendix: configuration", collapsed=True)
+    return sec.add(
+        f"Table 1 of the paper and every modelling assumption the paper leaves open, as used by this run "
+        f"(`{ctx.config_path.name}`, with the one-line reason written beside each assumption).",
         Table(["key (unit in the name)", "value", "meaning"], t1, caption="Table 1 (the paper)"),
         Table(["key", "value", "reason"], assumptions, caption="Modelling assumptions (ours, with reasons)"))
 
@@ -95,7 +114,7 @@ def simulation(ctx: Context) -> Section:
             ["calibration offset", None if cal.get("offset_m") is None else cal["offset_m"] * 1e6, "µm"],
             ["lift-off: rotor settled at (y)", float(lev["y_true"][-1]) * 1e6, "µm"],
             ["levitation control current u_y", lev_meta["equilibrium"]["u_y"], "A"]]
-    return Section("2. The nonlinear simulation").add(
+    return Section("1. The nonlinear simulation").add(
         f"Lift-off from the backup bearing (experiment `levitate`), and DCM self-sensing against the true "
         f"position during the {what} (experiment `{name}`). The y loop is closed on the self-sensing estimate; "
         "the x loop on the eddy-current sensor.",
@@ -103,16 +122,9 @@ def simulation(ctx: Context) -> Section:
         Table(["quantity", "value", "unit"], rows, caption=f"Self-sensing in `{name}` and lift-off"))
 
 
-def _git_commit(where) -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=where, timeout=10)
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 def provenance(ctx: Context) -> Section:
-    """Config hashes, versions, the git commit and the run time of every rule."""
+    """The code (git commit, or the sources' hash), the config hashes, every package's version and
+    the run time of every rule."""
     sims = ctx.summary.get("details", {}).get("simulations", {})
     hashes = sorted({v.get("config_hash") for v in sims.values() if v.get("config_hash")})
     rows = []
@@ -122,11 +134,10 @@ def provenance(ctx: Context) -> Section:
         if rec:
             rows.append([str(f.relative_to(ctx.path("benchmarks"))).replace(".tsv", ""), float(rec[0]["s"]),
                          float(rec[0]["max_rss"])])
-    info = [["git commit", _git_commit(ctx.config_path.parent)], ["config hash (simulations)", ", ".join(hashes)]]
+    info = [["ssamb code", source_revision()], ["config hash (simulations)", ", ".join(hashes) or "none"]]
     return Section("Provenance").add(
-        "Configuration hash, package versions, the git commit of the code, and the run time of every rule "
-        "(Snakemake benchmarks).",
+        "The code that made this report, the configuration hash, the version of every package ssamb depends "
+        "on, and the run time of every rule (Snakemake benchmarks).",
         Table(["item", "value"], info + [[k, v] for k, v in versions().items()]),
         Table(["rule / wildcard", "wall time (s)", "max RSS (MB)"], rows),
         f"Sum of rule run times: {sum(r[1] for r in rows):.1f} s." if rows else None)
-

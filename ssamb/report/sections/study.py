@@ -5,6 +5,7 @@ from __future__ import annotations
 from ..context import Context
 from ..compare import answer_text
 from ..elements import Image, Section, Table
+from ..failures import failure_lines
 
 __all__ = ["paper_way", "sensitivity"]
 
@@ -22,7 +23,7 @@ def paper_way(ctx: Context) -> Section:
             ["fit x / y (%)", f"{P['fit_pct']['x']} / {P['fit_pct']['y']}" if P.get("fit_pct") else None],
             ["self-sensing μ peak", (P.get("mu") or {}).get("selfsensing", {}) and P["mu"]["selfsensing"]["peak"]],
             ["its cause (computed)", (P.get("mu_peak_cause") or {}).get("sentence")]]
-    rows += [[f"failed: {k}", v] for k, v in (P.get("failed") or {}).items()]
+    rows += [["failed", line] for line in failure_lines(P.get("failed"))]
     S = P.get("selection") or {}
     if S:
         rows += [["selection by the assembled loop", S.get("rule")],
@@ -48,7 +49,7 @@ def sensitivity(ctx: Context) -> Section:
                        "after it holds it.")
     keys = ("fit_y_pct", "mu_peak_hz", "mu_scale_for_unity", "critical_nonlinear_um", "critical_lti_um",
             "delevitation_nonlinear_s")
-    rows = [[n, v.get("stable"), *[v.get(k) for k in keys], "; ".join(f"{a}: {b}" for a, b in v["failed"].items())]
+    rows = [[n, v.get("stable"), *[v.get(k) for k in keys], "; ".join(failure_lines(v["failed"]))]
             for n, v in st["variants"].items()]
     ans = st["answers"]
     return sec.add(
