@@ -23,13 +23,14 @@ from __future__ import annotations
 
 import sys
 import traceback
+from contextlib import contextmanager
 from typing import Any, Callable, Iterable
 
 import numpy as np
 
 from ..model_io import Failed, write_failed
 
-__all__ = ["NUMERICAL_FAILURES", "run_guarded"]
+__all__ = ["NUMERICAL_FAILURES", "run_guarded", "job_log"]
 
 #: what a stage may fail with on legitimate data (numerics, physics, an upstream failure) --
 #: programming errors (TypeError, KeyError, AttributeError, ...) are never caught
@@ -50,3 +51,46 @@ def run_guarded(stage: str, outputs: Iterable[str], fn: Callable, *args, tolerat
         for path in outputs:
             write_failed(path, reason, stage)
         return None
+
+
+@contextmanager
+def job_log(path: str, stage: str):
+    """Send a workflow job's stdout and stderr to its log file, and its failure too.
+
+    A Snakemake script runs its job inside ``with job_log(snakemake.log[0], "stage"):``. The
+    failure is written into the log *before* the log is closed and the console's streams are
+    restored (an exception that leaves a plain ``with open(log)`` block finds ``sys.stderr``
+    closed, and its message is lost with it):
+
+    * bad input (:class:`ssamb.errors.InputError`): the command line's one line,
+      ``ssamb <stage>: error: <message>``, in the log and on the console; the job exits with
+      status 2 (Snakemake reports the job as failed and names the log);
+    * anything else: the traceback in the log, then the exception goes on (the console shows
+      it too, the job exits with status 1).
+
+    Parameters
+    ----------
+    path : str
+        The job's log file (``snakemake.log[0]``), created or truncated.
+    stage : str
+        The stage's name, the first word of the one-line message.
+    """
+    from ..errors import InputError
+
+    saved = sys.stdout, sys.stderr
+    with open(path, "w", encoding="utf-8", buffering=1) as log:
+        sys.stdout = sys.stderr = log
+        try:
+            yield log
+        except InputError as exc:
+            line = f"ssamb {stage}: error: {' '.join(str(exc).split())}\n"
+            log.write(line)
+            sys.stdout, sys.stderr = saved
+            sys.stderr.write(line)
+            raise SystemExit(2) from None
+        except BaseException as exc:
+            if not isinstance(exc, SystemExit):
+                traceback.print_exc(file=log)
+            raise
+        finally:
+            sys.stdout, sys.stderr = saved

@@ -1,11 +1,10 @@
 """Snakemake script: a run's summary.json (ssamb.stages.summary.write_summary)."""
-import sys
 from pathlib import Path
 
 from ssamb.stages.summary import write_summary
+from ssamb.stages import job_log
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stderr = sys.stdout = log
+with job_log(snakemake.log[0], "summary"):  # noqa: F821
     inp = snakemake.input  # noqa: F821
     cl = {Path(p).parent.name: p for p in inp.get("closeloop", [])}
     write_summary(
