@@ -4,7 +4,8 @@ Commands (binding interface, ARCHITECTURE.md):
 
 * ``simulate --experiment NAME [--config FILE] [--set KEY=VALUE ...] --out FILE.npz``
 * ``rig SCENARIO.yaml --out FILE.npz``
-* ``closeloop DATA.npz|DATA.csv --out DIR [--config FILE] [--workers N]``
+* ``closeloop DATA --out DIR [--device NAME] [--config FILE] [--workers N]`` (``NAME``: ``amb``,
+  the default, or ``maglev1d``; DATA in a format of that device)
 
 Every command exits with status 2 and a one-line reason on bad input (an
 :class:`ssamb.errors.InputError`: a config, scenario, effect or data-file error), and writes no
@@ -45,9 +46,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
 
     p = sub.add_parser("closeloop", help="find what the model lacks from measured data")
-    p.add_argument("data", help="measured data (.npz, or .csv with a .json sidecar)")
+    p.add_argument("data", help="measured data (amb: .npz, or .csv with a .json sidecar; maglev1d: a CSV with "
+                                "columns t,y,i,u,yd, the rig's text log, or the converted .npz)")
     p.add_argument("--out", required=True, help="output directory (closeloop.json and figures)")
-    p.add_argument("--config", default=None, help="config of the nominal model")
+    p.add_argument("--device", default="amb", help="the device the data come from: amb (default) or maglev1d")
+    p.add_argument("--config", default=None, help="config of the nominal model (default: the device's own)")
     p.add_argument("--workers", type=int, default=None,
                    help="processes for the independent replays (default: the CPUs available; the result does not depend on it)")
     p.add_argument("--quiet", action="store_true")
@@ -89,7 +92,8 @@ def _cmd_closeloop(args) -> None:
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers {args.workers}: must be at least 1")
     workers = args.workers or _cpus()
-    rep = run_closeloop(args.data, args.out, config=args.config, progress=not args.quiet, workers=workers)
+    rep = run_closeloop(args.data, args.out, config=args.config, progress=not args.quiet, workers=workers,
+                        device=args.device)
     print("\n".join(findings_text(rep)))
 
 

@@ -344,9 +344,9 @@ class Device:
         return {}
 
     def floors(self, settings) -> dict:
-        """Smallest noise level per view (per sample, in the view's unit): a channel logged without
-        noise would otherwise get an infinite weight."""
-        return {v: 0.0 for v in self.view_names}
+        """Smallest noise level per view and per channel (per sample, in its unit): a channel
+        logged without noise would otherwise get an infinite weight."""
+        return {v: 0.0 for v in self.view_names + self.channels}
 
     def device_lines_hz(self, cfg: Mapping, fs_hz: float) -> tuple:
         return ()

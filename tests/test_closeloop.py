@@ -87,11 +87,11 @@ def test_settings_unknown_key():
 
 def test_split_on_whole_periods():
     n_p = 16660
-    rec = Record(fs_hz=FS, channels={"x_meas": np.zeros(6 * n_p)}, inputs={}, excitation={}, excited_axes=("y",),
+    rec = Record(device=None, fs_hz=FS, channels={"x_meas": np.zeros(6 * n_p)}, inputs={}, excitation={}, excited_axes=("y",),
                  signal={}, n_period=n_p, lines_hz=None, start="levitated", settle_s=None)
     sp = make_split(rec, 0.7, 0.1, 0.1, 0.05)
     assert (sp.i0, sp.i_fit, sp.i_end) == (n_p, 4 * n_p, 6 * n_p)   # 1 discarded, 3 fitted, 2 held out
-    rec2 = Record(fs_hz=FS, channels={"x_meas": np.zeros(int(0.5 * FS))}, inputs={}, excitation={}, excited_axes=(),
+    rec2 = Record(device=None, fs_hz=FS, channels={"x_meas": np.zeros(int(0.5 * FS))}, inputs={}, excitation={}, excited_axes=(),
                   signal={}, n_period=None, lines_hz=None, start="levitated", settle_s=None)
     sp2 = make_split(rec2, 0.7, 0.1, 0.1, 0.05)
     assert abs(sp2.fit_fraction - 0.7) < 1e-3 and sp2.i0 == math.ceil(0.1 * FS)

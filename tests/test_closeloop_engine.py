@@ -24,9 +24,12 @@ def _frame(periods: int = 8, lines_hz=(10.0, 25.0, 40.0)):
     return make_frame(FS, 0, n, {"x": exc}, P_LEN, np.asarray(lines_hz)), t
 
 
+#: seven views, as the AMB's cost views
+NAMES = ("x_meas", "d_x", "c_x", "y_ss", "y_meas", "d_y", "c_y")
+
+
 def _views(x: np.ndarray) -> dict:
-    names = ("x_meas", "d_x", "c_x", "y_ss", "y_meas", "d_y", "c_y")
-    return {v: x[i] for i, v in enumerate(names)}
+    return {v: x[i] for i, v in enumerate(NAMES)}
 
 
 def test_offgrid_covariance_of_correlated_white_noise():
@@ -38,7 +41,7 @@ def test_offgrid_covariance_of_correlated_white_noise():
     x = np.zeros((7, n))
     x[0], x[1] = s * a, s * (c * a + math.sqrt(1 - c * c) * b)
     x[2:] = s * rng.standard_normal((5, n))
-    f = features(make_layout(fr, {"x": np.zeros(n)}), _views(x))
+    f = features(make_layout(fr, {"x": np.zeros(n)}, views=NAMES), _views(x))
     C = np.mean(f.cov_bins, axis=0) / (n * s * s)
     assert C[0, 0].real == pytest.approx(1.0, rel=0.1) and C[1, 1].real == pytest.approx(1.0, rel=0.1)
     assert C[0, 1].real == pytest.approx(c, abs=0.08)
@@ -73,7 +76,7 @@ def test_whitened_difference_has_unit_variance(c, ratio):
     fr, t = _frame(periods=10)
     n = fr.n
     rng = np.random.default_rng(7)
-    lay = make_layout(fr, {"x": np.zeros(n)})
+    lay = make_layout(fr, {"x": np.zeros(n)}, views=NAMES)
     sets = []
     for scale in (1.0, ratio):
         a, b = rng.standard_normal((2, n))
@@ -243,9 +246,8 @@ def test_coarse_start_of_a_dead_time(truth):
     """A dead time far beyond its finite-difference step: the coarse grid starts the fit next to
     it; with data that do not depend on it the plain start stays."""
     from ssamb.closeloop.fit import _coarse_start
-    from ssamb.closeloop.models import effect_model
 
-    m = effect_model("amplifier_deadtime", {}, ("x", "y"))
+    m = _amb_model("amplifier_deadtime", {})
     v = np.random.default_rng(3).standard_normal(300)
 
     def evaluate(theta, seed):
@@ -284,16 +286,18 @@ def test_size_statistic_of_an_effect_against_zero():
     assert size_statistic(np.array([1.0, -1.0]), c, ["a", "b"])[0] == pytest.approx(4.0)
     w0, _ = size_statistic(np.array([0.06]), np.array([[1e12]]), ["fy_n"])
     assert w0 < 1e-10
-    w, k = size_statistic(np.array([2e-5, 0.0, 50.0]), np.diag([1e-10, 1e-10, 1e-4]), ["me_cos_kgm", "me_sin_kgm", "speed_hz"])
+    unb = _amb_model("unbalance", {"speed_hz": 50.0})
+    assert unb.params == ("me_cos_kgm", "me_sin_kgm", "speed_hz")
+    w, k = size_statistic(np.array([2e-5, 0.0, 50.0]), np.diag([1e-10, 1e-10, 1e-4]), unb.params, unb.size_params)
     assert k == 2 and w == pytest.approx(4.0)
     # one size parameter determined (34 errors from zero), the other left at an unestimated
     # parameter's placeholder variance: the effect is not null (a suite draw's unbalance had been
     # dropped so), and W does not depend on the units
     th, c = np.array([-1.18e-5, -5.07e-6, 112.0]), np.diag([3.5e-7 ** 2, 4.0, 1e-6])
-    w, k = size_statistic(th, c, ["me_cos_kgm", "me_sin_kgm", "speed_hz"])
+    w, k = size_statistic(th, c, unb.params, unb.size_params)
     assert k == 2 and w == pytest.approx((1.18e-5 / 3.5e-7) ** 2, rel=1e-6)
     scale = np.array([1e6, 1e3, 1.0])
-    assert size_statistic(th * scale, c * np.outer(scale, scale), ["a", "b", "speed_hz"])[0] == pytest.approx(w)
+    assert size_statistic(th * scale, c * np.outer(scale, scale), unb.params, unb.size_params)[0] == pytest.approx(w)
 
 
 def test_joint_refit_starts_where_the_effects_were_found():
@@ -319,11 +323,10 @@ def test_an_effect_the_joint_refit_leaves_at_zero_is_dropped():
     leaves the accepted list and the final model; a significant one stays, with its values."""
     from types import SimpleNamespace
 
-    from ssamb.closeloop.models import effect_model
     from ssamb.closeloop.search import SearchResult, _drop_null_effects
 
-    load = effect_model("static_load", {"axes": ["x", "y"]}, ("x", "y"))
-    dead = effect_model("amplifier_deadtime", {}, ("x", "y"))
+    load = _amb_model("static_load", {"axes": ["x", "y"]})
+    dead = _amb_model("amplifier_deadtime", {})
     # two calibration parameters, then the load (18, -4.6 N +- 0.3 N) and a dead time of 2 +- 10 ns
     theta = np.array([0.01, -0.02, 18.0, -4.6, 2e-9])
     cov = np.diag([1e-4, 1e-4, 0.09, 0.09, 1e-16])
@@ -333,3 +336,13 @@ def test_an_effect_the_joint_refit_leaves_at_zero_is_dropped():
     assert [a["name"] for a in out.accepted] == ["static_load"]
     assert eff == [{"name": "static_load", "fx_n": 18.0, "fy_n": -4.6}]
     assert out.dropped[0]["name"] == "amplifier_deadtime" and out.dropped[0]["size_chi2"] == pytest.approx(0.04)
+
+
+def _amb_model(name: str, hints: dict):
+    """The AMB device's parameterisation of an effect on data exciting both axes."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.settings import Settings
+    from ssamb.device import get_device
+
+    return get_device("amb").effect_model(name, hints, SimpleNamespace(excited_axes=("x", "y")), Settings())

@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, sys.argv[1])
 import test_closeloop_effects as T
 from ssamb.config import load_config
-from ssamb.closeloop.data import record_from_arrays
+from ssamb.sim.device import record_from_arrays
 from ssamb.sim import simulate
 cfg = load_config()
 out = []

@@ -39,11 +39,11 @@ __all__ = ["analyse", "run_closeloop", "DataError"]
 
 
 def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", progress: bool = False,
-             workers: int = 1):
-    from ..io import validate_measured
+             workers: int = 1, device="amb"):
+    from ..device import get_device
     from .calibration import parameter_specs
     from .comparison import Comparison
-    from .data import make_split, record_from_arrays, views
+    from .data import make_split
     from .replay import Replayer
     from .report import build_report
     from .residual import compute_features
@@ -51,18 +51,19 @@ def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data",
     from .settings import settings_from_config
 
     t0 = time.perf_counter()
-    settings = settings_from_config(cfg)
-    specs = parameter_specs(cfg, settings.calibration)
-    validate_measured(arrays, source)
-    rec = record_from_arrays(arrays, meta, float(cfg["controller"]["fs_hz"]), source)
+    dev = get_device(device)
+    settings = settings_from_config(cfg, dev)
+    specs = parameter_specs(cfg, settings.calibration or {})
+    dev.validate(arrays, source)
+    notes = dev.notes(arrays, meta, cfg)
+    rec = dev.record(arrays, meta, cfg, source)
     split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s,
                        settings.min_holdout_s, source)
     replay = Replayer(cfg, rec, workers=int(workers))
     try:
-        cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings.floor_position_m,
-                               settings.floor_current_a)
+        cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings)
         cmp.calibrate_noise()
-        ft = compute_features(rec, cmp.fit.frame, views(rec.channels), views(cmp.prediction()), settings)
+        ft = compute_features(rec, cmp.fit.frame, dev.views(rec.channels), dev.views(cmp.prediction()), settings)
         cmp.set_lines(sorted(ln["f_hz"] for ln in ft.lines))
         result = search(cmp, specs, settings, progress=progress)
     finally:
@@ -72,16 +73,19 @@ def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data",
              replay.wall_s / max(replay.n_sims, 1), wall_s)
     # wall times go to the log only: closeloop.json is byte-reproducible
     report = build_report(rec, split, result, settings, source, {"simulations": replay.n_sims})
+    if notes:
+        report["notes"] = list(notes) + report["notes"]
     return report, {"record": rec, "split": split, "search": result, "comparison": cmp, "settings": settings}
 
 
-def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, workers: int = 1) -> dict:
+def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, workers: int = 1, device="amb") -> dict:
     """Analyse measured data against the nominal model of ``cfg``; return ``closeloop.json`` as a dict.
 
     Parameters
     ----------
     arrays : mapping
-        Measured-data columns (ARCHITECTURE.md), ``fs_hz`` included.
+        Measured-data columns of the device (for the AMB: the measured-data format), ``fs_hz``
+        included.
     meta : mapping
         The data's ``meta`` (the excitation).
     cfg : mapping
@@ -90,6 +94,8 @@ def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, workers: int = 1) -> d
     workers : int
         Processes that run the independent replays (a fit's design, a prediction's seeds); the
         result does not depend on it.
+    device : str or ssamb.device.Device
+        The device the data come from (:func:`ssamb.device.get_device`; default the AMB).
 
     Raises
     ------
@@ -97,10 +103,10 @@ def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, workers: int = 1) -> d
         Bad data (missing columns, non-finite values, ``fs_hz`` inconsistent with ``t`` or
         with the model, too short to split).
     """
-    return _analyse(arrays, meta, cfg, workers=workers)[0]
+    return _analyse(arrays, meta, cfg, workers=workers, device=device)[0]
 
 
-def run_closeloop(data_path, out_dir, config=None, progress: bool = True, workers: int = 1) -> dict:
+def run_closeloop(data_path, out_dir, config=None, progress: bool = True, workers: int = 1, device="amb") -> dict:
     """Analyse a data file and write ``out_dir/closeloop.json`` and figures.
 
     Everything is computed and drawn into a fresh temporary directory beside ``out_dir``,
@@ -112,24 +118,27 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True, worker
     Parameters
     ----------
     data_path : path
-        Measured data (``.npz``, or ``.csv`` with a ``.json`` sidecar).
+        Measured data in a format of the device (:meth:`ssamb.device.Device.load`; the AMB:
+        ``.npz``, or ``.csv`` with a ``.json`` sidecar).
     out_dir : path
         Output directory (created or replaced).
     config : path or mapping, optional
-        Configuration file (default: the repository's ``config.yaml``) or an already loaded
-        configuration.
+        Configuration file of the device's model (default: the device's own,
+        :meth:`ssamb.device.Device.load_config`) or an already loaded configuration.
     progress : bool
         Progress messages on stderr.
     workers : int
         Processes for the independent replays (:func:`analyse`).
+    device : str or ssamb.device.Device
+        The device the data come from (default the AMB).
 
     Returns
     -------
     dict
         The ``closeloop.json`` content.
     """
-    from ..config import load_config
-    from ..io import check_replaceable, load_measured, replace_dir, write_json
+    from ..device import get_device
+    from ..io import check_replaceable, replace_dir, write_json
     from .figures import make_figures
 
     def owned(p: Path) -> bool:
@@ -137,9 +146,10 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True, worker
 
     out_dir = Path(out_dir)
     check_replaceable(out_dir, owned)
-    cfg = dict(config) if isinstance(config, Mapping) else load_config(config)
-    arrays, meta = load_measured(data_path)
-    report, art = _analyse(arrays, meta, cfg, source=str(data_path), progress=progress, workers=workers)
+    dev = get_device(device)
+    cfg = dict(config) if isinstance(config, Mapping) else dev.load_config(config)
+    arrays, meta = dev.load(data_path)
+    report, art = _analyse(arrays, meta, cfg, source=str(data_path), progress=progress, workers=workers, device=dev)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}."))
     try:

@@ -257,6 +257,9 @@ def _reason(i: int, names: tuple, c: np.ndarray, alone: float, se: float, tol: f
     if alone > ratio * tol:
         return f"the data barely depend on it: even alone it would be known to +-{_pct(alone)} (tolerance +-{_pct(tol)})"
     order = [k for k in np.argsort(-np.abs(c)) if k != i]
+    if not order:
+        return (f"the data inform it (alone it would be known to +-{_pct(alone)}), but the estimate did not move "
+                f"along it: its sensitivity is below the replays' noise (tolerance +-{_pct(tol)})")
     strong = [names[k] for k in order[:2] if abs(c[k]) >= 0.5]
     if strong:
         who = f"confounded with {' and '.join(strong)} (posterior correlation {c[order[0]]:+.2f})"

@@ -28,9 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .data import Record, Split, pwm_lines, unit_of, views
-from .features import (COST_VIEWS, Features, Layout, Whitener, features, make_layout, replicate_factors,
-                        scale_views)
+from .data import Record, Split
+from .features import Features, Layout, Whitener, features, make_layout, replicate_factors, scale_views
 from .replay import Replayer
 from .spectra import Frame, make_frame
 
@@ -76,7 +75,7 @@ class PartResidual:
 
     def model_features(self, channels: dict) -> Features:
         """Feature values of model channels (views or channels; no noise: the whitener is fixed)."""
-        ch = channels if "d_x" in channels else views(channels)
+        ch = channels if all(v in channels for v in self.layout.views) else self.layout.device.views(channels)
         return features(self.layout, ch, noise=False)
 
     def __call__(self, channels: dict) -> np.ndarray:
@@ -95,7 +94,7 @@ class Comparison:
     seeds : tuple of int
         Seeds of the replays averaged into a prediction.
     floor : numpy.ndarray
-        Smallest noise level per view of :data:`COST_VIEWS` (per sample).
+        Smallest noise level per cost view of the device (per sample).
     fit, hold : Part
     lines_hz : tuple
         Line frequencies read as features.
@@ -112,28 +111,33 @@ class Comparison:
     _nominal: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, record: Record, split: Split, replay: Replayer, seeds, floor_position_m: float,
-              floor_current_a: float, pwm_harmonics: int = 8) -> "Comparison":
-        """Frames of the two parts and the measured features: DC, the excited lines and the PWM
-        carrier's aliased harmonics (:func:`ssamb.closeloop.data.pwm_lines`); lines the excitation
-        lacks are added by :meth:`set_lines`."""
+    def build(cls, record: Record, split: Split, replay: Replayer, seeds, settings) -> "Comparison":
+        """Frames of the two parts and the measured features: DC, the excited lines and the device's
+        own lines (:meth:`ssamb.device.Device.device_lines_hz`: the AMB's PWM carrier's aliased
+        harmonics); lines the excitation lacks are added by :meth:`set_lines`."""
         import dataclasses
 
-        floor = np.array([floor_position_m if unit_of(v) == "m" else floor_current_a for v in COST_VIEWS])
-        ripple = pwm_lines(float(replay.cfg["table1"]["f_pwm_hz"]), record.fs_hz, pwm_harmonics)
+        dev = record.device
+        fl = dev.floors(settings)
+        floor = np.array([fl[v] for v in dev.cost_views])
+        ripple = dev.device_lines_hz(replay.cfg, record.fs_hz)
         record = dataclasses.replace(record, device_lines_hz=ripple)
         replay.record = record
         c = cls(record, split, replay, tuple(int(s) for s in seeds), floor)
         fs, sig, P, lines = record.fs_hz, record.signal, split.n_period, record.lines_hz
         fit_frame = make_frame(fs, split.i0, split.i_fit - split.i0, sig, P, lines)
         hold_frame = make_frame(fs, split.i_fit, split.i_end - split.i_fit, sig, P, lines)
-        c.fit = Part(fit_frame, make_layout(fit_frame, sig, ripple), None)
-        c.hold = Part(hold_frame, make_layout(hold_frame, sig, ripple), None)
+        c.fit = Part(fit_frame, make_layout(fit_frame, sig, ripple, dev.cost_views, device=dev), None)
+        c.hold = Part(hold_frame, make_layout(hold_frame, sig, ripple, dev.cost_views, device=dev), None)
         c._measure()
         return c
 
+    @property
+    def device(self):
+        return self.record.device
+
     def _measure(self) -> None:
-        meas = views(self.record.channels)
+        meas = self.device.views(self.record.channels)
         self.fit.data = features(self.fit.layout, meas, self.floor)
         factors = self.fit.data.factors or None
         self.hold.data = features(self.hold.layout, meas, self.floor, factors=factors)
@@ -160,10 +164,10 @@ class Comparison:
         off-grid covariance of the mean of the replays.
         """
         self._nominal = {"overrides": overrides, "effects": tuple(effects)}
-        runs = [views(r) for r in self.replay.runs(effects, None, overrides, self.seeds)]
+        runs = [self.device.views(r) for r in self.replay.runs(effects, None, overrides, self.seeds)]
         mean = {v: np.mean([r[v] for r in runs], axis=0) for v in runs[0]}
         fac = replicate_factors([features(self.fit.layout, r) for r in runs]) if len(runs) >= 3 else None
-        ones = (np.ones(len(COST_VIEWS)), np.ones(len(COST_VIEWS)))
+        ones = (np.ones(len(self.device.cost_views)), np.ones(len(self.device.cost_views)))
         for part in (self.fit, self.hold):
             fm = features(part.layout, mean, factors=ones)
             if fac is not None:
@@ -229,7 +233,7 @@ class Comparison:
         g = part.whitener.groups()
         dc = set(g["dc"].tolist())
         out = []
-        for v in COST_VIEWS:
+        for v in part.layout.views:
             idx = g.get("view:" + v, np.zeros(0, int))
             out.append(np.array([i for i in idx if i not in dc], int))
             out.append(np.array([i for i in idx if i in dc], int))

@@ -43,13 +43,8 @@ from scipy import signal
 
 from .spectra import Frame, _bands
 
-__all__ = ["COST_VIEWS", "Features", "Layout", "make_layout", "features", "Whitener", "line_phasors",
+__all__ = ["Features", "Layout", "make_layout", "features", "Whitener", "line_phasors",
            "scale_views", "replicate_factors"]
-
-#: views compared: positions (x probe, y self-sensing estimate, y evaluation probe), differential
-#: and common-mode coil currents. The controller outputs are left out: a digital function of
-#: the sensed positions, they carry nothing the positions do not, and their noise is collinear.
-COST_VIEWS = ("x_meas", "d_x", "c_x", "y_ss", "y_meas", "d_y", "c_y")
 
 
 @dataclass(frozen=True)
@@ -71,8 +66,11 @@ class Layout:
     lines_hz : tuple
         Frequencies of the line features.
     views : tuple
+        The views compared (the device's cost views).
     signals : dict
         Welch frames: per axis, the excitation over the whole record.
+    device : ssamb.device.Device or None
+        The device whose views these are (to derive them from channels).
     """
 
     frame: Frame
@@ -80,8 +78,9 @@ class Layout:
     axes: tuple
     nperseg: int
     lines_hz: tuple
-    views: tuple = COST_VIEWS
+    views: tuple = ()
     signals: dict = field(default_factory=dict, repr=False)
+    device: object = field(default=None, repr=False, compare=False)
 
     @property
     def f_bins_hz(self) -> np.ndarray:
@@ -95,7 +94,7 @@ class Layout:
         return dataclasses.replace(self, lines_hz=tuple(float(f) for f in lines_hz))
 
 
-def make_layout(frame: Frame, signals: dict, lines_hz=(), views=COST_VIEWS, max_bins: int = 64) -> Layout:
+def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: int = 64, device=None) -> Layout:
     """The feature layout of ``frame``.
 
     Parameters
@@ -105,13 +104,15 @@ def make_layout(frame: Frame, signals: dict, lines_hz=(), views=COST_VIEWS, max_
         injection when the reference is constant).
     lines_hz : sequence of float
         Line frequencies to read as features.
+    views : sequence of str
+        The views compared.
     max_bins : int
         Welch frames: at most this many bins, the strongest of the excitation's power.
     """
     if frame.periodic:
         kb = np.unique(np.concatenate([np.asarray(v, int) for v in frame.excited.values()])) if frame.excited else \
             np.zeros(0, int)
-        return Layout(frame, kb, (), 0, tuple(float(f) for f in lines_hz), tuple(views))
+        return Layout(frame, kb, (), 0, tuple(float(f) for f in lines_hz), tuple(views), device=device)
     nper = _welch_length(frame.n)
     seg = slice(frame.i0, frame.i0 + frame.n)
     power = np.zeros(nper // 2 + 1)
@@ -123,7 +124,7 @@ def make_layout(frame: Frame, signals: dict, lines_hz=(), views=COST_VIEWS, max_
     if len(cand) > max_bins:
         cand = np.sort(cand[np.argsort(-power[cand])[:max_bins]])
     return Layout(frame, cand, tuple(signals), nper, tuple(float(f) for f in lines_hz), tuple(views),
-                  {a: np.asarray(s, float) for a, s in signals.items()})
+                  {a: np.asarray(s, float) for a, s in signals.items()}, device)
 
 
 def _welch_length(n: int) -> int:

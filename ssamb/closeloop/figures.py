@@ -19,16 +19,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import unit_of, views
-
 __all__ = ["make_figures"]
 
-_PLOT_VIEWS = ("x_meas", "y_ss", "y_meas", "d_x", "d_y", "c_x", "c_y", "u_x", "u_y")
 _MODELS = (("nominal", "tab:red"), ("calibrated", "tab:orange"), ("final", "tab:blue"))
+#: display scale of a unit
+_SCALES = {"m": (1e6, "um"), "A": (1e3, "mA"), "V": (1.0, "V")}
 
 
-def _scale(v: str) -> tuple[float, str]:
-    return (1e6, "um") if unit_of(v) == "m" else (1e3, "mA")
+def _scale(dev, v: str) -> tuple[float, str]:
+    u = dev.unit(v)
+    return _SCALES.get(u, (1.0, u))
 
 
 def _save(fig, out_dir: Path, name: str, names: list) -> None:
@@ -91,10 +91,13 @@ def _time(art: dict, meas: dict, models: dict, sig: dict, out_dir: Path, names: 
     import matplotlib.pyplot as plt
 
     rec, hold = art["record"], art["split"].hold
+    dev = rec.device
     t = np.arange(rec.n)[hold] / rec.fs_hz
-    fig, axs = plt.subplots(len(_PLOT_VIEWS), 1, figsize=(10, 2.0 * len(_PLOT_VIEWS)), sharex=True)
-    for ax, v in zip(axs, _PLOT_VIEWS):
-        k, u = _scale(v)
+    vn = dev.view_names
+    fig, axs = plt.subplots(len(vn), 1, figsize=(10, 2.0 * len(vn)), sharex=True, squeeze=False)
+    axs = axs[:, 0]
+    for ax, v in zip(axs, vn):
+        k, u = _scale(dev, v)
         for label, col in _MODELS:
             ax.plot(t, k * (meas[v][hold] - models[label][v][hold]), lw=0.5, color=col, label=label)
         if v in sig:
@@ -112,11 +115,18 @@ def _spectra(art: dict, meas: dict, models: dict, sig: dict, out_dir: Path, name
     from scipy import signal
 
     rec, hold = art["record"], art["split"].hold
+    dev = rec.device
     fs = rec.fs_hz
     nper = int(2 ** max(8, min(15, int(np.log2(max((hold.stop - hold.start) // 4, 256))))))
-    fig, axs = plt.subplots(3, 3, figsize=(13, 9))
-    for ax, v in zip(axs.ravel(), _PLOT_VIEWS):
-        k, u = _scale(v)
+    nper = min(nper, hold.stop - hold.start)
+    vn = dev.view_names
+    ncol = 3 if len(vn) > 4 else len(vn)
+    nrow = -(-len(vn) // ncol)
+    fig, axs = plt.subplots(nrow, ncol, figsize=(4.3 * ncol, 3 * nrow), squeeze=False)
+    for ax in axs.ravel()[len(vn):]:
+        ax.set_visible(False)
+    for ax, v in zip(axs.ravel(), vn):
+        k, u = _scale(dev, v)
         for label, col in _MODELS:
             f, p = signal.welch(k * (meas[v][hold] - models[label][v][hold]), fs=fs, nperseg=nper)
             if np.any(p[1:] > 0):
@@ -126,7 +136,7 @@ def _spectra(art: dict, meas: dict, models: dict, sig: dict, out_dir: Path, name
         ax.set_title(v, fontsize=9)
         ax.set_ylabel(f"{u}/sqrt(Hz)", fontsize=8)
     axs[0, 0].legend(fontsize=7)
-    for ax in axs[-1]:
+    for ax in axs[-1][: len(vn) - (nrow - 1) * ncol]:
         ax.set_xlabel("frequency (Hz)")
     fig.suptitle("Residual amplitude spectral density, held-out part")
     _save(fig, out_dir, "residual_spectra.png", names)
@@ -164,7 +174,7 @@ def _ratios(art: dict, meas: dict, models: dict, out_dir: Path, names: list) -> 
     for label, ls in (("calibrated", "-"), ("final", "--")):
         ft = compute_features(art["record"], art["comparison"].fit.frame, meas, models[label], art["settings"])
         for name, r in ft.ratios.items():
-            if name in ("x", "y_sensor"):
+            if name not in ("y", "y_plant"):          # the AMB's y paths beside its sensor path
                 axs[0].semilogx(r["f_hz"], 20 * np.log10(np.abs(r["R"])), ls, marker=".", label=f"{r['path']} ({label})")
                 axs[1].semilogx(r["f_hz"], np.degrees(np.unwrap(np.angle(r["R"]))), ls, marker=".",
                                 label=f"{r['path']} ({label})")
@@ -186,8 +196,9 @@ def make_figures(art: dict, rep: dict, out_dir: Path) -> list[str]:
 
     matplotlib.use("Agg", force=True)
     search = art["search"]
-    meas = views(art["record"].channels)
-    models = {"nominal": views(search.nominal), "calibrated": views(search.calibrated), "final": views(search.final)}
+    v = art["record"].device.views
+    meas = v(art["record"].channels)
+    models = {"nominal": v(search.nominal), "calibrated": v(search.calibrated), "final": v(search.final)}
     sig = rep["noise"]["views"]
     names: list = []
     _calibration(rep, out_dir, names)

@@ -36,7 +36,6 @@ import numpy as np
 from ..errors import InputError
 from .comparison import Comparison, Part
 from .estimate import EstimateSettings, MapFit, Problem, map_fit
-from .features import COST_VIEWS
 from .models import EffectModel, combine
 
 __all__ = ["Base", "Candidate", "fit_candidate", "holdout_score", "chi2_views"]
@@ -117,7 +116,7 @@ def _scaled(cmp: Comparison, part: Part, base: Base, pred: dict, overrides: dict
 def chi2_views(cmp: Comparison, part: Part, r: np.ndarray) -> dict:
     """Per view, ``(chi2, n)`` of a whitened residual (its DC entry included)."""
     g = part.whitener.groups()
-    return {v: (float(np.sum(r[g["view:" + v]] ** 2)), len(g["view:" + v])) for v in COST_VIEWS if "view:" + v in g}
+    return {v: (float(np.sum(r[g["view:" + v]] ** 2)), len(g["view:" + v])) for v in part.layout.views if "view:" + v in g}
 
 
 def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effects: list, n_params: int,

@@ -3,18 +3,11 @@ with the device.
 
 The statistics of close the loop (features, estimation, signatures, search) see the model only
 through :meth:`Replayer.mean`: *given parameter overrides (dotted config keys), library effects
-and a set of seeds, return the logged channels*. Another device model plugs in by providing
-the same method.
-
-The AMB model is :func:`ssamb.sim.simulate` with explicit ``arrays`` (the recorded references
-and injections), the start state the data's ``meta`` names (default: levitated, from the static
-equilibrium, after the config's pre-roll), the library effects, and the data's logging chain
-(``meta.acquisition``) applied to the model's channels. The DSP's converters act in the loop as
-configured, seeded by ``seed``: a replay is one realisation of the loop's noise, and
-:meth:`Replayer.mean` averages several (the model's *expected* response, with its noise reduced
-by the number of seeds). The self-sensing calibration of a replay is noise-free
-(``calibration_noise=False``): a rig's calibration error is a parameter
-(``selfsensing.calibration_*_error``), not a random draw of the model's.
+and a set of seeds, return the logged channels*. The device does the replay
+(:meth:`ssamb.device.Device.replay`): the model driven by what the record says drove the rig,
+from the start state it names, with the data's logging chain. A replay is one realisation of the
+loop's noise, seeded; :meth:`Replayer.mean` averages several (the model's *expected* response,
+with its noise reduced by the number of seeds).
 """
 from __future__ import annotations
 
@@ -27,7 +20,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from .data import CHANNELS, Record
+from ..device import Record
 
 __all__ = ["Replayer"]
 
@@ -127,7 +120,7 @@ class Replayer:
 
     def run(self, effects: Iterable[Mapping] = (), n: int | None = None, overrides: Mapping | None = None,
             seed: int | None = None, cache: bool = True) -> dict:
-        """Model channels (:data:`CHANNELS`) for the first ``n`` samples (default: all).
+        """Model channels (the device's) for the first ``n`` samples (default: all).
 
         Parameters
         ----------
@@ -142,9 +135,7 @@ class Replayer:
         cache : bool
             Keep the result (an estimator's design runs are never asked for twice).
         """
-        from ..acquisition import apply_acquisition
         from ..config import apply_overrides
-        from ..sim import simulate
 
         effects = [dict(e) for e in effects]
         n = self.record.n if n is None else int(n)
@@ -155,15 +146,12 @@ class Replayer:
             self._cache[key] = out
             return out
         cfg = apply_overrides(self.cfg, ov) if ov else self.cfg
-        arrays = {k: v[:n] for k, v in self.record.inputs.items()}
         t0 = time.perf_counter()
-        res = simulate(cfg, arrays=arrays, effects=effects, start=self.record.start,
-                       settle_s=self.record.settle_s, progress=False, seed=seed, calibration_noise=False)
+        rep = self.record.device.replay(cfg, self.record, effects, n, seed)
         self.wall_s += time.perf_counter() - t0
         self.n_sims += 1
-        logged = apply_acquisition({c: res.data[c] for c in CHANNELS}, self.record.acquisition, self.record.fs_hz)
-        out = {c: np.asarray(logged[c], float) for c in CHANNELS}
-        out["delevitated"] = res.meta.get("delevitation_s") is not None
+        out = {c: np.asarray(rep.channels[c], float) for c in self.record.device.channels}
+        out["delevitated"] = bool(rep.contact)
         if cache:
             self._store(key, out)
         return out
@@ -176,7 +164,8 @@ class Replayer:
         model's own noise by the number of seeds.
         """
         runs = self.runs(effects, n, overrides, seeds)
-        out = {c: np.mean([r[c] for r in runs], axis=0) if len(runs) > 1 else runs[0][c] for c in CHANNELS}
+        out = {c: np.mean([r[c] for r in runs], axis=0) if len(runs) > 1 else runs[0][c]
+               for c in self.record.device.channels}
         out["delevitated"] = any(r["delevitated"] for r in runs)
         return out
 

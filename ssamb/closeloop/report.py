@@ -23,20 +23,19 @@ import numpy as np
 
 from ..io import plain
 from .calibration import findings
-from .data import VIEWS, views
 from .residual import channel_errors, channel_noise, compute_features
 
 __all__ = ["build_report", "findings_text"]
 
 
-def _error_reduction(meas_v, models_v, hold, sigma0) -> list[float]:
+def _error_reduction(meas_v, models_v, hold, sigma0, vn) -> list[float]:
     """Per step of a model sequence: the share of the first model's held-out residual excess removed.
 
     For every view clearly above the noise in the first model (mean square over twice the noise
     power), ``(ms_before - ms_after) / (ms_first - sigma^2)``, averaged over those views.
     """
-    ms = [{v: float(np.mean((meas_v[v][hold] - m[v][hold]) ** 2)) for v in VIEWS} for m in models_v]
-    above = [v for v in VIEWS if ms[0][v] > 2 * sigma0[v] ** 2]
+    ms = [{v: float(np.mean((meas_v[v][hold] - m[v][hold]) ** 2)) for v in vn} for m in models_v]
+    above = [v for v in vn if ms[0][v] > 2 * sigma0[v] ** 2]
     out = []
     for k in range(1, len(models_v)):
         if not above:
@@ -57,7 +56,7 @@ def _remaining(failures: list, limit: int = 12) -> dict:
     return {test: sorted(lst, key=key.get(test, lambda f: 0))[:limit] for test, lst in by.items()}
 
 
-def _calibration(search, sigma, meas_v, hold, nominal_v) -> dict:
+def _calibration(search, sigma, meas_v, hold, nominal_v, dev) -> dict:
     """The ``calibration`` block and the binding ``parameters`` / ``not_identifiable``."""
     cal = search.calibration
     ident = search.joint.get("ident")
@@ -75,7 +74,7 @@ def _calibration(search, sigma, meas_v, hold, nominal_v) -> dict:
                     "z_from_nominal": float(t / s.prior_sd), "se_alone": d["se_alone"] * scale,
                     "partner": d["partner"], "correlation": d["correlation"], "reason": d["reason"],
                     "conflict": s.key in cal.conflicts})
-    red = _error_reduction(meas_v, [nominal_v, views(search.calibrated)], hold, sigma)[0]
+    red = _error_reduction(meas_v, [nominal_v, dev.views(search.calibrated)], hold, sigma, dev.view_names)[0]
     block = {"parameters": per, "rank": ident["rank"], "n_parameters": ident["n_parameters"],
              "condition": ident["condition"], "singular_values": ident["singular_values"],
              "combinations": ident["combinations"], "conflicts": cal.conflicts, "error_reduction": red,
@@ -84,9 +83,9 @@ def _calibration(search, sigma, meas_v, hold, nominal_v) -> dict:
     return block, params, not_ident
 
 
-def _effects(search, sigma, meas_v, hold) -> list:
-    models = [views(search.calibrated)] + [views(a["pred"]) for a in search.accepted]
-    red = _error_reduction(meas_v, models, hold, sigma)
+def _effects(search, sigma, meas_v, hold, dev) -> list:
+    models = [dev.views(search.calibrated)] + [dev.views(a["pred"]) for a in search.accepted]
+    red = _error_reduction(meas_v, models, hold, sigma, dev.view_names)
     ident = search.joint.get("ident") or {"per_parameter": {}}
     out = []
     for a, r in zip(search.accepted, red):
@@ -108,7 +107,7 @@ def _effects(search, sigma, meas_v, hold) -> list:
 
 def _notes(rec, effects, cal_block, not_ident) -> list:
     notes = []
-    for ax in ("x", "y"):
+    for ax in rec.device.features.axis_views:
         if ax not in rec.excited_axes:
             notes.append(f"axis {ax} is not excited: a sensor gain or delay on it leaves no trace in these data")
     for e in effects:
@@ -144,16 +143,17 @@ def _summary(effects, unexplained, params) -> str:
 
 def build_report(rec, split, search, settings, source: str, timing: dict) -> dict:
     """The ``closeloop.json`` dictionary."""
-    meas_v = views(rec.channels)
+    dev = rec.device
+    meas_v = dev.views(rec.channels)
     hold = split.hold
     frame = _hold_frame(rec, split)
-    sigma = compute_features(rec, frame, meas_v, views(search.final), settings, lines=False).sigma
-    sig_ch = channel_noise(frame, rec.channels, search.final, settings)
-    cal_block, params, not_ident = _calibration(search, sigma, meas_v, hold, views(search.nominal))
-    effects = _effects(search, sigma, meas_v, hold)
+    sigma = compute_features(rec, frame, meas_v, dev.views(search.final), settings, lines=False).sigma
+    sig_ch = channel_noise(frame, rec.channels, search.final, settings, dev)
+    cal_block, params, not_ident = _calibration(search, sigma, meas_v, hold, dev.views(search.nominal), dev)
+    effects = _effects(search, sigma, meas_v, hold, dev)
 
     def errs(model):
-        ce = channel_errors(rec.channels, model, hold, sig_ch or None)
+        ce = channel_errors(rec.channels, model, hold, dev, sig_ch or None)
         for d in ce.values():
             if "noise_rms" in d:
                 d["above_noise"] = bool(d["rms"] > 2 * d["noise_rms"])
@@ -178,7 +178,8 @@ def build_report(rec, split, search, settings, source: str, timing: dict) -> dic
                     "without_signature": bool(r.get("fallback"))} for r in search.rounds],
         "final_model": {"overrides": search.overrides, "effects": search.effects},
         "noise": {"views": sigma, "channels": sig_ch},
-        "data": {"source": source, "duration_s": rec.duration_s, "fs_hz": fs, "excitation": rec.excitation,
+        "data": {"source": source, "device": dev.name, "duration_s": rec.duration_s, "fs_hz": fs,
+                 "excitation": rec.excitation,
                  "excited_axes": list(rec.excited_axes), "start": rec.start, "acquisition": rec.acquisition},
         "timing": timing,
         "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
@@ -223,7 +224,9 @@ def findings_text(rep: dict) -> list[str]:
         par = ", ".join(f"{k} = {v:.4g}" + (f" +- {unc[k]:.2g}" if isinstance(unc.get(k), float) else "")
                         if isinstance(v, float) else f"{k} = {v}" for k, v in e["params"].items())
         out.append(f"effect {e['name']}: {par} (removes {100 * e['error_reduction']:.0f} % of the residual excess)")
-    for c in ("x_meas", "y_meas", "y_ss", "currents"):
+    for c in rep["error_before"]:
+        if "per_coil" not in rep["error_before"][c] and any(c in g.get("per_coil", {}) for g in rep["error_before"].values()):
+            continue            # a channel of a group: the group's line stands for it
         b, a = rep["error_before"][c], rep["error_after"][c]
         out.append(f"held-out rms error {c}: {b['rms']:.3g} -> {a['rms']:.3g} (noise {a.get('noise_rms', float('nan')):.3g})")
     return out

@@ -35,17 +35,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from .data import CHANNELS, CURRENT_CHANNELS, VIEWS, unit_of
 from .spectra import (Frame, dft, find_peaks_bins, fit_line, noise_floor, offset, welch_transfer,
                       white_sigma)
 
 __all__ = ["Features", "compute_features", "channel_errors", "channel_noise"]
 
-#: views of each axis (for the cross-axis and unbalance tests)
-AXIS_VIEWS = {"x": ("x_meas", "d_x", "u_x"), "y": ("y_ss", "y_meas", "d_y", "u_y")}
-#: the counterpart of a view in the other axis
-COUNTERPART = {"x_meas": "y_ss", "d_x": "d_y", "u_x": "u_y", "y_ss": "x_meas", "y_meas": "x_meas",
-               "d_y": "d_x", "u_y": "u_x"}
 
 
 @dataclass
@@ -67,19 +61,20 @@ class Features:
     excited_f_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-def _floor(view: str, model_seg: np.ndarray, settings) -> float:
-    absf = settings.floor_position_m if unit_of(view) == "m" else settings.floor_current_a
+def _floor(view: str, model_seg: np.ndarray, settings, dev) -> float:
+    absf = dev.floors(settings)[view]
     return max(absf, settings.floor_relative * float(np.std(model_seg)))
 
 
-def channel_errors(meas: dict, model: dict, sl: slice, sigma: dict | None = None) -> dict:
-    r"""Held-out error of every channel and of the four coil currents together.
+def channel_errors(meas: dict, model: dict, sl: slice, dev, sigma: dict | None = None) -> dict:
+    r"""Held-out error of every channel of the device and of its groups (:attr:`Device.error_groups`).
 
     ``rms`` is :math:`\sqrt{\overline{e^2}}` and ``fit_pct`` the NRMSE fit
-    :math:`100\,(1 - \|y - \hat y\| / \|y - \bar y\|)`; ``currents`` pools the four coils.
+    :math:`100\,(1 - \|y - \hat y\| / \|y - \bar y\|)`; a group (the AMB's ``currents``)
+    pools its channels.
     """
     out = {}
-    for c in CHANNELS:
+    for c in dev.channels:
         y, yh = meas[c][sl], model[c][sl]
         e = y - yh
         den = np.linalg.norm(y - y.mean())
@@ -89,14 +84,15 @@ def channel_errors(meas: dict, model: dict, sl: slice, sigma: dict | None = None
         if sigma is not None and c in sigma:
             d["noise_rms"] = float(sigma[c])
         out[c] = d
-    e = np.concatenate([meas[c][sl] - model[c][sl] for c in CURRENT_CHANNELS])
-    y = np.concatenate([meas[c][sl] - meas[c][sl].mean() for c in CURRENT_CHANNELS])
-    cur = {"rms": float(np.sqrt(np.mean(e ** 2))),
-           "fit_pct": float(100.0 * (1.0 - np.linalg.norm(e) / np.linalg.norm(y))) if np.linalg.norm(y) > 0 else float("nan"),
-           "per_coil": {c: out[c] for c in CURRENT_CHANNELS}}
-    if sigma is not None:
-        cur["noise_rms"] = float(np.sqrt(np.mean([sigma[c] ** 2 for c in CURRENT_CHANNELS])))
-    out["currents"] = cur
+    for name, group in dev.error_groups.items():
+        e = np.concatenate([meas[c][sl] - model[c][sl] for c in group])
+        y = np.concatenate([meas[c][sl] - meas[c][sl].mean() for c in group])
+        cur = {"rms": float(np.sqrt(np.mean(e ** 2))),
+               "fit_pct": float(100.0 * (1.0 - np.linalg.norm(e) / np.linalg.norm(y))) if np.linalg.norm(y) > 0 else float("nan"),
+               "per_coil": {c: out[c] for c in group}}
+        if sigma is not None:
+            cur["noise_rms"] = float(np.sqrt(np.mean([sigma[c] ** 2 for c in group])))
+        out[name] = cur
     return out
 
 
@@ -123,13 +119,14 @@ def _excited_data(rec, frame: Frame, meas_v: dict, model_v: dict, S: dict, X: di
                   fl: dict | None = None):
     """Per excited axis: bins, excitation DFT, measured/model values and noise variance per view."""
     out = {}
+    vn = rec.device.view_names
     if frame.periodic:
         for ax, kb in frame.excited.items():
             if len(kb) == 0:
                 continue
             Sa = np.fft.rfft(rec.signal[ax][frame.i0:frame.i0 + frame.n])[kb]
             d = {"f_hz": frame.f_hz[kb], "bins": kb, "Hm": {}, "Hh": {}, "var": {}, "E": {}, "Enoise": {}}
-            for v in VIEWS:
+            for v in vn:
                 d["Hm"][v] = Xm[v][kb] / Sa
                 d["Hh"][v] = Xh[v][kb] / Sa
                 d["var"][v] = S[v][kb] / np.abs(Sa) ** 2
@@ -141,18 +138,18 @@ def _excited_data(rec, frame: Frame, meas_v: dict, model_v: dict, S: dict, X: di
     nper = int(2 ** max(8, min(16, int(math.log2(max(frame.n // 8, 256))))))
     for ax in rec.excited_axes:
         s = rec.signal[ax][seg]
-        wm = welch_transfer(s, {v: meas_v[v][seg] for v in VIEWS}, rec.fs_hz, nper)
-        wh = welch_transfer(s, {v: model_v[v][seg] for v in VIEWS}, rec.fs_hz, nper)
+        wm = welch_transfer(s, {v: meas_v[v][seg] for v in vn}, rec.fs_hz, nper)
+        wh = welch_transfer(s, {v: model_v[v][seg] for v in vn}, rec.fs_hz, nper)
         # the noise of a measured transfer is the part of the residual not coherent with the
         # excitation (the model's own nonlinear response is shared by data and model)
-        wr = welch_transfer(s, {v: meas_v[v][seg] - model_v[v][seg] for v in VIEWS}, rec.fs_hz, nper)
+        wr = welch_transfer(s, {v: meas_v[v][seg] - model_v[v][seg] for v in vn}, rec.fs_hz, nper)
         sel = (wm["f_hz"] > 0) & (wm["Sss"] > 1e-3 * wm["Sss"].max())
         if not np.any(sel):
             continue
         d = {"f_hz": wm["f_hz"][sel], "bins": np.flatnonzero(sel), "Hm": {}, "Hh": {}, "var": {}, "E": {}, "Enoise": {},
              # neighbouring Hann bins are correlated: a chi^2 sum over k bins is ~ 1.5 Gamma(k/1.5)
              "chi_scale": 1.5}
-        for v in VIEWS:
+        for v in vn:
             d["Hm"][v] = wm["H"][v][sel]
             d["Hh"][v] = wh["H"][v][sel]
             # never below the reproducibility floor, seen as white noise of that level
@@ -164,27 +161,31 @@ def _excited_data(rec, frame: Frame, meas_v: dict, model_v: dict, S: dict, X: di
     return out
 
 
-def _isolated_excited_lines(frame: Frame, X: dict, S: dict, exd: dict, alpha: float, isolation: float = 100.0) -> list:
+def _isolated_excited_lines(frame: Frame, X: dict, S: dict, exd: dict, alpha: float, dev,
+                            isolation: float = 100.0) -> list:
     """Lines that sit on an excited line but stand out of it: residual at one excited bin, in
-    both axes, ``isolation`` times (in chi^2) above the median of the other excited bins
-    (an unbalance spinning at an excited frequency; periodic frames only)."""
+    every line view (:attr:`FeatureSpec.line_views`: the AMB's two axes), ``isolation`` times (in
+    chi^2) above the median of the other excited bins (an unbalance spinning at an excited
+    frequency; periodic frames only)."""
+    vn = dev.view_names
+    lv = dev.features.line_views
     kb = np.unique(np.concatenate([d["bins"] for d in exd.values()]))
     if len(kb) < 5:
         return []
     thr = math.log(2 * len(kb) / alpha)
-    chi = {v: np.abs(X[v][kb]) ** 2 / S[v][kb] for v in VIEWS}
+    chi = {v: np.abs(X[v][kb]) ** 2 / S[v][kb] for v in vn}
     out = []
     for i, k in enumerate(kb):
         ok = True
-        for v in ("d_x", "d_y"):
+        for v in lv:
             others = np.delete(chi[v], i)
             if not (chi[v][i] > thr and chi[v][i] > isolation * max(np.median(others), 1.0)):
                 ok = False
         if ok:
-            out.append({"f_hz": float(frame.f_hz[k]), "phasor": {v: complex(2 * X[v][k] / frame.n) for v in VIEWS},
-                        "se": {v: math.sqrt(2 * S[v][k]) / frame.n for v in VIEWS},
-                        "chi2": {v: float(chi[v][i]) for v in VIEWS}, "views_detected": ["d_x", "d_y"],
-                        "peak_ratio": float(min(chi["d_x"][i], chi["d_y"][i])), "threshold": thr,
+            out.append({"f_hz": float(frame.f_hz[k]), "phasor": {v: complex(2 * X[v][k] / frame.n) for v in vn},
+                        "se": {v: math.sqrt(2 * S[v][k]) / frame.n for v in vn},
+                        "chi2": {v: float(chi[v][i]) for v in vn}, "views_detected": list(lv),
+                        "peak_ratio": float(min(chi[v][i] for v in lv)), "threshold": thr,
                         "on_excited_line": True})
     return out
 
@@ -220,7 +221,7 @@ def _ratio_fit(f_hz, Hm_s, Hm_a, Hh_s, Hh_a, var_s, var_a, min_snr: float = 10.0
             "chi2_gain": chi_re, "chi2_phase": chi_im, "dof": k - 1, "n_lines": k}
 
 
-def _cross_test(exd: dict, a: str, b: str, degree: int = 2) -> dict | None:
+def _cross_test(exd: dict, a: str, b: str, dev, degree: int = 2) -> dict | None:
     r"""Residual in axis ``b`` explained by axis ``a`` beyond b's own nominal response.
 
     For each view v of b, at the excited lines: :math:`E_v(k) = \sum_i c_i \phi_i(f_k)\hat Y_v(k)
@@ -232,15 +233,16 @@ def _cross_test(exd: dict, a: str, b: str, degree: int = 2) -> dict | None:
     src = exd.get(a)
     if src is None:
         return None
+    axis_views, counterpart = dev.features.axis_views, dev.features.counterpart
     f = src["f_hz"]
     fn = f / max(f.max(), 1e-12)
     best = None
-    for v in AXIS_VIEWS[b]:
+    for v in axis_views[b]:
         E = src["E"][v]
         Sn = src["Enoise"][v]
         wts = 1.0 / np.sqrt(Sn)
         own = src["Hh"][v]
-        oth = src["Hh"][COUNTERPART[v]]
+        oth = src["Hh"][counterpart[v]]
         k = len(f)
         if b not in exd:
             chi = float(np.sum(np.abs(E) ** 2 / Sn))
@@ -278,54 +280,56 @@ def _cross_test(exd: dict, a: str, b: str, degree: int = 2) -> dict | None:
         if best is None or res["logp"] < best["logp"]:
             best = res
     if best is not None:
-        best["n_views"] = len(AXIS_VIEWS[b])
+        best["n_views"] = len(axis_views[b])
     return best
 
 
-def _spectra_of(frame: Frame, meas_v: dict, model_v: dict, settings):
+def _spectra_of(frame: Frame, meas_v: dict, model_v: dict, settings, dev):
     """Residual, DFTs (residual, measured, model), reproducibility floors and noise floors per view."""
     seg = slice(frame.i0, frame.i0 + frame.n)
-    res_v = {v: meas_v[v] - model_v[v] for v in VIEWS}
-    fl = {v: _floor(v, model_v[v][seg], settings) for v in VIEWS}
-    X = {v: dft(frame, res_v[v]) for v in VIEWS}
-    Xm = {v: dft(frame, meas_v[v]) for v in VIEWS}
-    Xh = {v: dft(frame, model_v[v]) for v in VIEWS}
-    S = {v: noise_floor(frame, X[v], floor=fl[v]) for v in VIEWS}
+    vn = dev.view_names
+    res_v = {v: meas_v[v] - model_v[v] for v in vn}
+    fl = {v: _floor(v, model_v[v][seg], settings, dev) for v in vn}
+    X = {v: dft(frame, res_v[v]) for v in vn}
+    Xm = {v: dft(frame, meas_v[v]) for v in vn}
+    Xh = {v: dft(frame, model_v[v]) for v in vn}
+    S = {v: noise_floor(frame, X[v], floor=fl[v]) for v in vn}
     return res_v, fl, X, Xm, Xh, S
 
 
-def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings, device_lines_hz=()) -> tuple[list, dict]:
+def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings, dev, device_lines_hz=()) -> tuple[list, dict]:
     """Lines the excitation lacks: detect, remove, re-estimate the floor, detect again (a strong
     line leaks into the off-grid bins of a rectangular frame and would raise the floor).
 
     Updates ``X`` and ``S`` in place (lines removed); returns the lines and the segments with
     them removed."""
     seg = slice(frame.i0, frame.i0 + frame.n)
-    segs = {v: res_v[v][seg].copy() for v in VIEWS}
+    vn = dev.view_names
+    segs = {v: res_v[v][seg].copy() for v in vn}
     found = []
     for _pass in range(2):
-        P = {v: np.abs(X[v]) ** 2 for v in VIEWS}
-        Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
+        P = {v: np.abs(X[v]) ** 2 for v in vn}
+        Sl = {v: _line_floor(frame, S[v], fl[v]) for v in vn}
         clusters = find_peaks_bins(frame, P, Sl, 0.0, settings.line_search_max_hz, settings.alpha_evidence,
                                    exclude_hz=np.asarray(device_lines_hz, float))
         clusters = [c for c in clusters if all(abs(c["f_hz"] - ln["f_hz"]) > 2 * frame.df_hz for ln in found)]
         if not clusters:
             break
         for c in clusters[:6]:
-            sig_at = {v: math.sqrt(S[v][c["bin"]] / frame.w2) for v in VIEWS}
+            sig_at = {v: math.sqrt(S[v][c["bin"]] / frame.w2) for v in vn}
             ln = fit_line(frame, segs, sig_at, c["f_hz"])
             ln.update(views_detected=sorted(c["views"]), peak_ratio=c["peak"], threshold=c["threshold"])
             found.append(ln)
-            for v in VIEWS:
+            for v in vn:
                 segs[v] = segs[v] - ln["component"][v]
-        for v in VIEWS:
+        for v in vn:
             full = res_v[v].copy()
             full[seg] = segs[v]
             X[v] = dft(frame, full)
             S[v] = noise_floor(frame, X[v], floor=fl[v])
     for ln in found:          # final amplitudes against the final floor
         k = int(round(ln["f_hz"] / frame.df_hz))
-        for v in VIEWS:
+        for v in vn:
             se = math.hypot(math.sqrt(S[v][min(k, len(S[v]) - 1)] / frame.w2) * ln["se_scale"], fl[v])
             ln["se"][v] = se
             ln["chi2"][v] = abs(ln["phasor"][v]) ** 2 / se ** 2 if se > 0 else float("inf")
@@ -336,7 +340,7 @@ def _remove_lines(frame: Frame, res_v: dict, meas_v: dict, Xm: dict, segs: dict)
     """Residual and measurement with the found lines removed (for everything after the lines)."""
     seg = slice(frame.i0, frame.i0 + frame.n)
     meas_v = dict(meas_v)
-    for v in VIEWS:
+    for v in segs:
         comp = np.zeros_like(res_v[v])
         comp[seg] = res_v[v][seg] - segs[v]
         res_v[v] = res_v[v] - comp
@@ -345,10 +349,10 @@ def _remove_lines(frame: Frame, res_v: dict, meas_v: dict, Xm: dict, segs: dict)
     return meas_v
 
 
-def _excited_residual(exd: dict) -> dict:
+def _excited_residual(exd: dict, views: tuple) -> dict:
     """Per view, the chi-square of the residual at the excited lines (each bin once) and its p."""
     out = {}
-    for v in VIEWS:
+    for v in views:
         chi, k, seen, c = 0.0, 0, set(), 1.0
         for d in exd.values():
             c = d.get("chi_scale", 1.0)
@@ -362,86 +366,88 @@ def _excited_residual(exd: dict) -> dict:
     return out
 
 
-def _paths(ft: Features, exd: dict, settings) -> None:
-    """Sensor-path ratios and the cross-axis tests (into ``ft``).
-
-    x: the probe over the coil current; y: the estimate over the coil current, the estimate
-    over the evaluation probe (the sensor path alone: plant changes cancel) and the evaluation
-    probe over the coil current (the plant alone)."""
+def _paths(ft: Features, exd: dict, settings, dev) -> None:
+    """The device's path ratios (:attr:`FeatureSpec.paths`) at each excited axis' lines, and the
+    cross-axis tests between its axes (into ``ft``)."""
     for ax, d in exd.items():
-        paths = {"x": (("x", "x_meas", "d_x"),),
-                 "y": (("y", "y_ss", "d_y"), ("y_sensor", "y_ss", "y_meas"), ("y_plant", "y_meas", "d_y"))}[ax]
-        for name, sv, va in paths:
+        for name, (pax, sv, va) in dev.features.paths.items():
+            if pax != ax:
+                continue
             r = _ratio_fit(d["f_hz"], d["Hm"][sv], d["Hm"][va], d["Hh"][sv], d["Hh"][va], d["var"][sv], d["var"][va],
                            settings.ratio_min_snr)
             if r is not None:
                 r["axis"], r["path"] = ax, f"{sv}/{va}"
                 ft.ratios[name] = r
-    for a, b in (("x", "y"), ("y", "x")):
-        c = _cross_test(exd, a, b)
+    axes = tuple(dev.features.axis_views)
+    for a, b in ((a, b) for a in axes for b in axes if a != b):
+        c = _cross_test(exd, a, b, dev)
         if c is not None:
             ft.cross[f"{a}->{b}"] = c
 
 
-def _ripple(frame: Frame, X: dict, Sl: dict, settings) -> dict:
+def _ripple(frame: Frame, X: dict, Sl: dict, settings, views: tuple) -> dict:
     """Ripple distortion: residual chi-square of the coil currents on the grid above ``ripple_min_hz``."""
     sel = frame.grid_mask & (frame.f_hz >= settings.ripple_min_hz)
     k = int(np.count_nonzero(sel))
     out = {}
-    for v in ("c_x", "c_y", "d_x", "d_y"):
+    for v in views:
         chi = float(np.sum(np.abs(X[v][sel]) ** 2 / Sl[v][sel]))
         out[v] = {"chi2": chi, "k": k, "p": _gamma_p(chi, k), "excess_ratio": chi / k - 1.0 if k else 0.0}
     return out
 
 
-def _device_lines(frame: Frame, X: dict, Sl: dict, lines_hz) -> dict:
+def _device_lines(frame: Frame, X: dict, Sl: dict, lines_hz, views: tuple) -> dict:
     """Residual chi-square of the coil-current views at the device's own lines (the PWM carrier's
     aliased harmonics, on the grid of a periodic frame): the ripple's shape, which a dead time
     changes and the bias current does not."""
     kb = [int(round(f / frame.df_hz)) for f in lines_hz
           if abs(f / frame.df_hz - round(f / frame.df_hz)) < 1e-6 and round(f / frame.df_hz) < len(frame.f_hz)]
     out = {}
-    for v in ("c_x", "c_y", "d_x", "d_y"):
+    for v in views:
         chi = float(np.sum(np.abs(X[v][kb]) ** 2 / Sl[v][kb])) if kb else 0.0
         out[v] = {"chi2": chi, "k": len(kb), "logp": float(stats.chi2.logsf(2 * chi, 2 * len(kb))) if kb else 0.0}
     return out
 
 
-def channel_noise(frame: Frame, meas_ch: dict, model_ch: dict, settings) -> dict:
+def channel_noise(frame: Frame, meas_ch: dict, model_ch: dict, settings, dev) -> dict:
     """White-equivalent noise level of every channel's residual over ``frame`` (off-grid floor)."""
     seg = slice(frame.i0, frame.i0 + frame.n)
     return {c: white_sigma(frame, noise_floor(frame, dft(frame, meas_ch[c] - model_ch[c]),
-                                              floor=_floor(c, model_ch[c][seg], settings)))
-            for c in CHANNELS}
+                                              floor=_floor(c, model_ch[c][seg], settings, dev)))
+            for c in dev.channels}
 
 
 def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, lines: bool = True) -> Features:
     """Evidence of the residual ``meas_v - model_v`` (views, whole-record arrays) over ``frame``
     (module docstring)."""
-    res_v, fl, X, Xm, Xh, S = _spectra_of(frame, meas_v, model_v, settings)
+    dev = rec.device
+    vn = dev.view_names
+    res_v, fl, X, Xm, Xh, S = _spectra_of(frame, meas_v, model_v, settings, dev)
     found = []
     if lines:
-        found, segs = _find_lines(frame, res_v, X, S, fl, settings, getattr(rec, "device_lines_hz", ()))
+        found, segs = _find_lines(frame, res_v, X, S, fl, settings, dev, getattr(rec, "device_lines_hz", ()))
         if found:
             meas_v = _remove_lines(frame, res_v, meas_v, Xm, segs)
         for ln in found:
             ln.pop("component", None)
-    ft = Features(frame=frame, sigma={v: white_sigma(frame, S[v]) for v in VIEWS}, S=S, X=X)
+    ft = Features(frame=frame, sigma={v: white_sigma(frame, S[v]) for v in vn}, S=S, X=X)
     ft.lines, ft.floor = found, fl
     # deterministic content below the model's reproducibility floor is not evidence: the line
     # tests see the floor as a line of amplitude fl in every bin
-    Sl = {v: _line_floor(frame, S[v], fl[v]) for v in VIEWS}
-    for v in VIEWS:
+    Sl = {v: _line_floor(frame, S[v], fl[v]) for v in vn}
+    for v in vn:
         mu, se = offset(frame, res_v[v], S[v])
         se = math.hypot(se, fl[v])
         ft.offsets[v] = {"mean": mu, "se": se, "z": mu / se if se > 0 else 0.0}
     exd = _excited_data(rec, frame, meas_v, model_v, Sl, X, Xm, Xh, fl)
     ft.excited_f_hz = np.unique(np.concatenate([d["f_hz"] for d in exd.values()])) if exd else np.zeros(0)
-    ft.excited_residual = _excited_residual(exd)
+    ft.excited_residual = _excited_residual(exd, vn)
     if lines and frame.periodic and exd:
-        ft.lines.extend(_isolated_excited_lines(frame, X, Sl, exd, settings.alpha_evidence, settings.line_isolation))
-    _paths(ft, exd, settings)
+        ft.lines.extend(_isolated_excited_lines(frame, X, Sl, exd, settings.alpha_evidence, dev,
+                                                 settings.line_isolation))
+    _paths(ft, exd, settings, dev)
     if frame.periodic:
-        ft.ripple = _ripple(frame, X, Sl, settings)
-        ft.device = _device_lines(frame, X, Sl, getattr(rec, "device_lines_hz", ()))
+        rv = dev.features.ripple_views
+        ft.ripple = _ripple(frame, X, Sl, settings, rv) if rv else {}
+        ft.device = _device_lines(frame, X, Sl, getattr(rec, "device_lines_hz", ()), rv) if rv else {}
     return ft

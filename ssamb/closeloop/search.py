@@ -38,10 +38,9 @@ from scipy import stats
 
 from .calibration import Calibration, calibrate_model, identifiability, overrides_of
 from .comparison import Comparison
-from .data import views
 from .estimate import EstimateSettings, Problem, map_fit
 from .fit import Base, Candidate, fit_candidate, holdout_score
-from .models import effect_model, report_entries, restart
+from .models import restart
 from .residual import compute_features
 from .signatures import claim_stat, evidence_all, rank
 
@@ -127,7 +126,8 @@ def consistency(cmp: Comparison, base: Base, settings) -> tuple[bool, list]:
         p = float(stats.chi2.sf(x, len(g))) if g else 1.0
         if p < fam / len(part.layout.views):
             fails.append({"test": "residual_at_excited_lines", "view": v, "chi2": x, "k": len(g), "p": p})
-    ft = compute_features(cmp.record, part.frame, views(cmp.record.channels), views(base.pred), settings)
+    v = cmp.device.views
+    ft = compute_features(cmp.record, part.frame, v(cmp.record.channels), v(base.pred), settings)
     for ln in ft.lines:
         fails.append({"test": "line_not_excited", "f_hz": ln["f_hz"], "views": ln["views_detected"],
                       "amplitude": {v: abs(a) for v, a in ln["phasor"].items()}})
@@ -151,12 +151,13 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
         cand.reasons.append(f"makes {', '.join(hs['views_worse'])} worse")
     if hs["delta_bic"] >= 0:
         cand.reasons.append(f"BIC does not drop ({hs['delta_bic']:.1f})")
-    ft_after = compute_features(cmp.record, cmp.fit.frame, views(cmp.record.channels), views(cand.pred), settings)
+    v = cmp.device.views
+    ft_after = compute_features(cmp.record, cmp.fit.frame, v(cmp.record.channels), v(cand.pred), settings)
     claim_crit = float(stats.chi2.isf(settings.alpha_evidence, 2))
     cand.score["claims"] = {}
     for n in cand.names:
-        before = claim_stat(n, ft, ev[n].hints, cmp.fit.frame.df_hz, settings)
-        after = claim_stat(n, ft_after, ev[n].hints, cmp.fit.frame.df_hz, settings)
+        before = claim_stat(cmp.device, n, ft, ev[n].hints, cmp.fit.frame.df_hz, settings)
+        after = claim_stat(cmp.device, n, ft_after, ev[n].hints, cmp.fit.frame.df_hz, settings)
         cand.score["claims"][n] = (before, after)
         if after > max(claim_crit, settings.claim_residual * before):
             cand.reasons.append(f"the signature of {n} remains after the fit (claim chi2 {before:.3g} -> {after:.3g})")
@@ -164,19 +165,20 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
         cand.reasons.append("the model with it delevitates (the measured rotor does not)")
 
 
-def size_statistic(theta: np.ndarray, cov: np.ndarray, params: list) -> tuple[float, int]:
+def size_statistic(theta: np.ndarray, cov: np.ndarray, params: list, size_params=None) -> tuple[float, int]:
     r"""Wald statistic of an effect's size against zero, ``(W, k)``.
 
-    :math:`W = \hat\theta_s^T C_s^{-1} \hat\theta_s` over the parameters ``params`` that
-    measure the effect's size (all but an unbalance's spin speed; each is 0 without the effect),
-    with their covariance :math:`C_s` (from ``cov``, the covariance of ``theta``).
+    :math:`W = \hat\theta_s^T C_s^{-1} \hat\theta_s` over the parameters of ``params`` that
+    measure the effect's size (``size_params``, default all: :attr:`EffectModel.size_params`, e.g.
+    all but an unbalance's spin speed; each is 0 without the effect), with their covariance
+    :math:`C_s` (from ``cov``, the covariance of ``theta``).
 
     It is applied to the joint refit (:func:`_drop_null_effects`), not to a candidate's own
     fit: there an effect's directions can fall outside those the last iteration determined
     (measured: a 6 N unbalance at 112 Hz that explained 100 % of the held-out excess had the
     placeholder variance of an unestimated parameter, so a test on it rejected a real effect).
     """
-    idx = [i for i, p in enumerate(params) if p != "speed_hz"]
+    idx = [i for i, p in enumerate(params) if size_params is None or p in size_params]
     th = np.asarray(theta, float)[idx]
     c = np.asarray(cov, float)[np.ix_(idx, idx)]
     # in standard units (the correlation matrix): W does not depend on the parameters' units, and
@@ -210,36 +212,22 @@ def _entry(cand: Candidate, rnd: int, repolish: bool = False) -> dict:
 def _round(cmp, base, settings, rnd, rejected):
     """One round: evidence, candidates fitted and judged. Returns ``(info, best or None, ft, ev)``."""
     rec = cmp.record
-    ft = compute_features(rec, cmp.fit.frame, views(rec.channels), views(base.pred), settings)
-    ev = evidence_all(ft, settings)
+    ft = compute_features(rec, cmp.fit.frame, cmp.device.views(rec.channels), cmp.device.views(base.pred), settings)
+    ev = evidence_all(ft, settings, cmp.device)
     taken = {e["name"] for e in base.effects}
     order = [n for n in rank(ev) if n not in taken and rejected.get(n, 0) < 2]
     info = {"round": rnd, "evidence": {n: e.to_json() for n, e in ev.items()}, "ranking": rank(ev), "candidates": []}
     return info, order, ft, ev
 
 
-def _effect_axes(name: str, rec, settings) -> tuple:
-    """The axes an effect is fitted on. A y sensor gain scales the calibrated DCM estimate,
-    y_ss = G (g y_raw + o): it is the DCM calibration's own error (gain G g, offset G o), so
-    when the calibration gain is calibrated (free, or at nominal while it conflicts: the joint
-    refit frees it again) the effect acts on x only."""
-    axes = rec.excited_axes
-    if name == "sensor_gain" and "selfsensing.calibration_gain_error" in settings.calibration:
-        axes = tuple(a for a in axes if a == "x")
-    return axes
-
-
 def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, progress) -> Candidate:
     t1 = time.perf_counter()
-    if any(not _effect_axes(n, rec, settings) for n in names if n in ("sensor_gain", "sensor_delay")):
-        return Candidate(tuple(names), [], None, None, [], reasons=[
-            "no axis to fit it on: x is not excited and the y sensor gain is the DCM calibration's own error"])
     models = []
     for n in names:
-        hints = dict(ev[n].hints)
-        if n == "sensor_gain":
-            hints["axes"] = [a for a in (hints.get("axes") or rec.excited_axes) if a in _effect_axes(n, rec, settings)]
-        models.append(effect_model(n, hints, _effect_axes(n, rec, settings)))
+        m = cmp.device.effect_model(n, dict(ev[n].hints), rec, settings)
+        if isinstance(m, str):
+            return Candidate(tuple(names), [], None, None, [], reasons=[m if len(names) == 1 else f"{n}: {m}"])
+        models.append(m)
     import dataclasses
 
     cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations))
@@ -318,8 +306,9 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
             break
         if not order:
             taken = {e["name"] for e in base.effects}
+            lib = cmp.device.effects
             order = [n for n in sorted(ev, key=lambda n: ev[n].log10_p)
-                     if n != "unbalance" and n not in taken and rejected.get(n, 0) == 0]
+                     if not lib[n].NEEDS_HINT and n not in taken and rejected.get(n, 0) == 0]
             info["fallback"] = bool(order)
             _log(progress, f"round {rnd}: no significant signature; fitting each of {order}")
         if not order:
@@ -398,7 +387,7 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
     kept, eff = [], []
     for a, m, lo, hi in zip(out.accepted, models, cuts[:-1], cuts[1:]):
         a["theta"], a["se"] = fit.theta[lo:hi], fit.se_misfit[lo:hi]
-        w, k = size_statistic(fit.theta[lo:hi], fit.cov_misfit[lo:hi, lo:hi], list(m.params))
+        w, k = size_statistic(fit.theta[lo:hi], fit.cov_misfit[lo:hi, lo:hi], list(m.params), m.size_params)
         a["joint_size_chi2"] = w
         if w <= float(stats.chi2.isf(alpha, k)):
             out.dropped.append({"name": m.name, "round": a["round"], "size_chi2": w, "k": k,
@@ -442,9 +431,7 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     out = SearchResult()
     est = EstimateSettings(**settings.estimate)
     rec = cmp.record
-    clearance = float(cmp.replay.cfg["table1"]["backup_clearance_m"])
-    measured_contact = bool(np.max(np.hypot(rec.channels["x_meas"], rec.channels["y_meas"]))
-                            >= settings.contact_fraction * clearance)
+    measured_contact = cmp.device.measured_contact(rec, cmp.replay.cfg, settings)
     out.nominal = cmp.prediction()
     t0 = time.perf_counter()
     cal = calibrate_model(cmp, specs, [], est, settings.identifiable_ratio, settings.conflict_z,
@@ -480,5 +467,5 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         out.joint = {"fit": cal.fit, "ident": ident, "theta_cal": cal.theta}
     for a in out.accepted:
         sig = (np.abs(a["theta"]) > 3 * a["se"]) & (np.abs(a["theta"]) > 1e-3 * a["model"].step)
-        a["entries"] = report_entries(a["model"], a["theta"], a["se"], sig)
+        a["entries"] = cmp.device.report_entries(a["model"], a["theta"], a["se"], sig)
     return out

@@ -10,16 +10,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Mapping
 
-__all__ = ["Settings", "settings_from_config", "DEFAULT_CALIBRATION"]
-
-#: the nominal parameters a rig never matches exactly, with their tolerances (config.yaml gives
-#: the reasons); used when a config has no ``closeloop.calibration``
-DEFAULT_CALIBRATION = {
-    "table1.mass_kg": 0.03, "table1.airgap_m": 0.03, "table1.i_bias_a": 0.03, "table1.coil_turns": 0.03,
-    "table1.r_coil_ohm": 0.05, "magnetics.iron_conductivity_s_per_m": 0.1, "table1.mu_r": 0.2,
-    "table1.v_supply_v": 0.03, "sensors.x_bandwidth_hz": 0.1, "selfsensing.calibration_gain_error": 0.03,
-    "selfsensing.calibration_offset_error_m": 1.0e-5,
-}
+__all__ = ["Settings", "settings_from_config"]
 
 
 @dataclass(frozen=True)
@@ -69,7 +60,7 @@ class Settings:
     calibration : dict
         Calibratable nominal parameters: dotted config key -> prior tolerance (standard
         deviation; relative to the nominal value, absolute in the key's unit when the nominal
-        value is 0). Empty: no calibration.
+        value is 0). Empty: no calibration; None: the device's priors.
     calibration_step_rel : float
         Largest finite-difference step of a relative parameter (a wider tolerance reaches where
         the response is no longer linear).
@@ -135,7 +126,7 @@ class Settings:
     floor_current_a: float = 1e-6
     floor_relative: float = 1e-5
     replay_seeds: int = 8
-    calibration: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_CALIBRATION))
+    calibration: dict | None = None
     calibration_step_rel: float = 0.05
     identifiable_ratio: float = 1.0 / 3.0
     conflict_z: float = 3.0
@@ -164,8 +155,9 @@ def _err(msg: str):
     return ConfigError(msg)
 
 
-def settings_from_config(cfg: Mapping | None) -> Settings:
-    """Settings from ``cfg['closeloop']`` (missing keys keep their defaults).
+def settings_from_config(cfg: Mapping | None, device=None) -> Settings:
+    """Settings from ``cfg['closeloop']`` (missing keys keep their defaults; without a
+    ``calibration`` the device's priors, :meth:`ssamb.device.Device.priors`, are calibrated).
 
     Raises
     ------
@@ -185,6 +177,8 @@ def settings_from_config(cfg: Mapping | None) -> Settings:
     if "default_dataset" in section and section["default_dataset"] not in ds:
         raise _err(f"config key 'closeloop.default_dataset': '{section['default_dataset']}' is not in "
                          f"closeloop.datasets (known: {', '.join(ds) or 'none'})")
+    if kw.get("calibration") is None and device is not None:
+        kw["calibration"] = dict(device.priors(cfg or {}))
     s = Settings(**kw)
     if not 0.1 <= s.fit_fraction <= 0.95:
         raise _err(f"config key 'closeloop.fit_fraction': must be in [0.1, 0.95] (got {s.fit_fraction})")

@@ -1,0 +1,114 @@
+r"""``sensor_delay``: a transport delay between the position and the controller.
+
+Physics: the position the controller receives is :math:`x(t - \tau)` (the x probe's
+conditioning, the y DCM estimate's pipeline), a fractional number of controller samples
+(kernel parameters ``DELAY_X``, ``DELAY_Y``).
+
+Signature: the sensor path's measured/model ratio (position over coil current at the excited
+lines; for y the self-sensing estimate over the evaluation probe, where plant changes cancel)
+has a phase lag linear in frequency, :math:`\angle R = -2\pi f\tau`, and a flat gain of 1.
+Evidence: :math:`(\hat\tau/\sigma_\tau)^2` per axis, one-sided.
+
+Fit: :math:`(\tau_x, \tau_y)` for the excited axes, :math:`\tau \ge 0`, started at the ratio's
+slope.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ...device import EffectModel, log10_p_upper
+from ._common import EffectError, axes_of, merge_axes, ratio_path, sensor_keep
+
+NAME = "sensor_delay"
+REQUIRED = ("axis", "delay_s")
+OPTIONAL = ()
+SIGNATURE = "phase lag of the sensor path linear in frequency (slope -2 pi tau), gain flat at 1"
+SEARCHABLE = True
+NEEDS_HINT = False
+
+
+def validate(p: dict, where: str) -> dict:
+    if not 0 <= float(p["delay_s"]) < 2.5e-3:
+        raise EffectError(f"{where}: delay_s must be in [0, 2.5e-3) s (got {p['delay_s']})")
+    return p
+
+
+def apply(e: dict, ov: dict, f_x, f_y, t, base_dir) -> None:
+    for ax in axes_of(e["axis"]):
+        key = "DELAY_" + ax.upper()
+        ov[key] = ov.get(key, 0.0) + float(e["delay_s"])
+
+
+def sensor_evidence(name: str, ft, alpha: float, kind: str, st) -> dict:
+    """Evidence of a sensor effect (``kind`` ``tau``: delay; ``alpha``: gain) on the sensor paths."""
+    axes, score, lp_min, det, hints = [], 0.0, 0.0, {}, {}
+    n_tests = 2
+    for ax in ("x", "y"):
+        r = ratio_path(ft, ax, st)
+        if r is None:
+            continue
+        if kind == "tau":
+            z = r["z_tau"]
+            lp = log10_p_upper(z) + math.log10(n_tests)
+            det[ax] = {"tau_s": r["tau_s"], "se_s": r["se_tau_s"], "z": z, "path": r["path"], "lines": r["n_lines"],
+                       "chi2_per_dof_phase": r["chi2_phase"] / max(r["dof"], 1)}
+            chi = r["chi2_tau"]
+        else:
+            from ...device import log10_p_two_sided
+
+            z = r["z_alpha"]
+            lp = log10_p_two_sided(z) + math.log10(n_tests)
+            det[ax] = {"gain": r["gain"], "se_log_gain": r["se_alpha"], "z": z, "path": r["path"],
+                       "lines": r["n_lines"], "chi2_per_dof_gain": r["chi2_gain"] / max(r["dof"], 1)}
+            chi = r["chi2_alpha"]
+        lp_min = min(lp_min, lp)
+        if lp < math.log10(alpha):
+            axes.append(ax)
+            score += chi
+            hints[("delay_" if kind == "tau" else "gain_") + ax] = r["tau_s"] if kind == "tau" else r["gain"]
+    hints["axes"] = axes
+    return {"score": score, "log10_p": lp_min, "significant": bool(axes), "hints": hints, "details": det}
+
+
+def evidence(ft, alpha: float, st) -> dict:
+    return sensor_evidence(NAME, ft, alpha, "tau", st)
+
+
+def sensor_claim(ft, st, key: str) -> float:
+    tot = 0.0
+    for ax in ("x", "y"):
+        r = ratio_path(ft, ax, st)
+        if r is not None:
+            tot += r[key]
+    return tot
+
+
+def claim(ft, hints: dict, df_hz: float, st) -> float:
+    return sensor_claim(ft, st, "chi2_tau")
+
+
+def fit_axes(hints: dict, excited_axes: tuple) -> tuple:
+    """Every excited axis is fitted (an axis without evidence costs one simulation and is left
+    out of the report when its estimate is not significant)."""
+    axes = tuple(a for a in (hints.get("axes") or excited_axes) if a in ("x", "y")) or excited_axes or ("x", "y")
+    return tuple(a for a in ("x", "y") if a in excited_axes or a in axes)
+
+
+def model(hints: dict, record, st) -> EffectModel | str:
+    excited = tuple(record.excited_axes)
+    if not excited:
+        return "no axis to fit it on: no axis is excited"
+    axes = fit_axes(hints, excited)
+    th = np.array([max(float(hints.get("delay_" + a, 0.0)), 0.0) for a in axes])
+    return EffectModel(NAME, tuple(f"delay_{a}_s" for a in axes), th, np.maximum(0.2 * th, 5e-6),
+                       np.zeros(len(axes)), np.full(len(axes), 2.4e-3),
+                       lambda t: [{"name": NAME, "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
+                       {"axes": axes})
+
+
+def report(m: EffectModel, theta, se, significant) -> list[dict]:
+    axes = m.fixed["axes"]
+    keep = sensor_keep(axes, se, significant)
+    return merge_axes(NAME, "delay_s", tuple(axes[i] for i in keep), theta[keep], se[keep], 0.0)

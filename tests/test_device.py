@@ -1,0 +1,124 @@
+"""The device interface: what close the loop may import, and what every device and effect module
+provides."""
+from __future__ import annotations
+
+import ast
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ssamb.device import DEVICES, Device, EffectModel, get_device
+from ssamb.errors import InputError
+
+ROOT = Path(__file__).resolve().parent.parent
+#: device packages close the loop must not import (only through ssamb.device)
+DEVICE_PACKAGES = ("ssamb.sim", "ssamb.maglev1d")
+
+
+def _imports(path: Path) -> set:
+    """Absolute names of the ssamb modules a file imports."""
+    tree = ast.parse(path.read_text())
+    pkg = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            base = pkg.split(".")
+            if node.level:
+                base = base[: len(base) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            out.add(name)
+            out.update(f"{name}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+    return out
+
+
+def test_close_the_loop_knows_devices_only_through_the_interface():
+    """No module of ssamb/closeloop imports a device package; none of a device imports close the loop."""
+    for f in sorted((ROOT / "ssamb" / "closeloop").glob("*.py")):
+        bad = [m for m in _imports(f) if m.startswith(DEVICE_PACKAGES)]
+        assert not bad, f"{f.name} imports {bad}"
+    for pkg in DEVICE_PACKAGES:
+        folder = ROOT.joinpath(*pkg.split("."))
+        for f in sorted(folder.rglob("*.py")) if folder.exists() else []:
+            bad = [m for m in _imports(f) if m.startswith(("ssamb.closeloop", "ssamb.report", "ssamb.stages"))]
+            assert not bad, f"{f.relative_to(ROOT)} imports {bad}"
+
+
+def test_unknown_device_is_named():
+    with pytest.raises(InputError, match="device 'nope': unknown .*amb"):
+        get_device("nope")
+
+
+AMB_LIBRARY = ("sensor_delay", "unbalance", "static_load", "sensor_gain", "amplifier_deadtime", "cross_coupling")
+
+
+def test_the_amb_device_library_and_views():
+    d = get_device("amb")
+    assert isinstance(d, Device) and d.name == "amb"
+    assert d.library == AMB_LIBRARY
+    assert set(d.effects) == set(AMB_LIBRARY) | {"external_force"}
+    ch = {c: np.full(4, float(i)) for i, c in enumerate(d.channels)}
+    v = d.views(ch)
+    assert set(v) == set(d.view_names) and set(d.cost_views) <= set(v)
+    assert np.all(v["d_x"] == 0.5 * (ch["i_xpos"] - ch["i_xneg"]))
+    assert all(d.unit(x) in ("m", "A") for x in d.view_names + d.channels)
+    from ssamb.closeloop.settings import Settings
+
+    fl = d.floors(Settings())
+    assert set(d.view_names + d.channels) <= set(fl) and fl["x_meas"] == Settings().floor_position_m
+
+
+@pytest.mark.parametrize("name", list(DEVICES))
+def test_every_effect_module_has_the_interface(name):
+    try:
+        d = get_device(name)
+    except ImportError:
+        pytest.skip(f"device {name} not available")
+    for n, m in d.effects.items():
+        assert m.NAME == n
+        for attr in ("REQUIRED", "OPTIONAL", "SIGNATURE", "SEARCHABLE", "NEEDS_HINT"):
+            assert hasattr(m, attr), f"{n}.{attr}"
+        for fn in ("validate", "evidence", "claim", "model", "report"):
+            assert callable(getattr(m, fn, None)), f"{n}.{fn}"
+
+
+def test_amb_sensor_gain_on_y_is_the_dcm_calibration():
+    """With the DCM calibration gain calibrated, a sensor gain is fitted on x only, and with x not
+    excited it cannot be fitted at all (the reason is given)."""
+    d = get_device("amb")
+    st = SimpleNamespace(calibration={"selfsensing.calibration_gain_error": 0.03})
+    m = d.effect_model("sensor_gain", {"axes": ["x", "y"], "gain_x": 1.1}, SimpleNamespace(excited_axes=("x", "y")), st)
+    assert isinstance(m, EffectModel) and m.fixed["axes"] == ("x",)
+    assert m.theta0[0] == pytest.approx(0.1)
+    why = d.effect_model("sensor_gain", {}, SimpleNamespace(excited_axes=("y",)), st)
+    assert isinstance(why, str) and "DCM calibration" in why
+    m2 = d.effect_model("sensor_gain", {}, SimpleNamespace(excited_axes=("y",)), SimpleNamespace(calibration={}))
+    assert m2.fixed["axes"] == ("y",)
+
+
+def test_amb_effect_report_entries_merge_agreeing_axes():
+    d = get_device("amb")
+    m = d.effect_model("sensor_delay", {"axes": ["x", "y"]}, SimpleNamespace(excited_axes=("x", "y")), None)
+    ent = d.report_entries(m, [30e-6, 30.5e-6], [1e-6, 1e-6], [True, True])
+    assert len(ent) == 1 and ent[0]["params"]["axis"] == "both"
+    w = 1 / 1e-12
+    assert ent[0]["params"]["delay_s"] == pytest.approx((30e-6 + 30.5e-6) / 2)
+    assert ent[0]["uncertainty"]["delay_s"] == pytest.approx(1 / math.sqrt(2 * w))
+    ent = d.report_entries(m, [30e-6, 60e-6], [1e-6, 1e-6], [True, True])
+    assert [e["params"]["axis"] for e in ent] == ["x", "y"]
+
+
+def test_validate_effect_through_the_device():
+    d = get_device("amb")
+    assert d.validate_effect({"name": "static_load", "fx_n": 1.0, "fy_n": 0.0}) == \
+        {"name": "static_load", "fx_n": 1.0, "fy_n": 0.0}
+    with pytest.raises(InputError, match="missing parameter 'fy_n'"):
+        d.validate_effect({"name": "static_load", "fx_n": 1.0})
+    with pytest.raises(InputError, match="'gravity_wave': unknown"):
+        d.validate_effect({"name": "gravity_wave"})
