@@ -1,0 +1,158 @@
+r"""Physical checks of the levitated ball's model against its data.
+
+Each check computes a number from the data alone and sets it beside what the model's
+parameters predict:
+
+* :func:`coil_time_constant` -- the current's response to the command. On levitated samples
+  with the command off its limits, the one-step regression
+  :math:`i_{k+1} = \alpha i_k + \beta u_k + \gamma` is the exact discretisation of
+  :math:`L\,di/dt = g u - V_0 - R i` over a sample (the motion term is small at rest), so
+  :math:`\tau = -T_s/\ln\alpha = L/R`, the incremental resistance seen by the command
+  :math:`(1-\alpha)/\beta = R/g` and the command's offset :math:`-\gamma/\beta = V_0/g`.
+  The model predicts :math:`\tau = L(\bar y)/(R_{coil} + R_{shunt})`, :math:`R/g` with
+  :math:`g = V_{max}/V_{ref}`, and no offset.
+* :func:`equilibrium_currents` -- on every plateau of the reference where the ball has settled,
+  the mean current against the mean position, beside the force law's
+  :math:`i_{eq}(y) = (1 + y/a)\sqrt{2 a m g/k}`; a straight line through the plateaus gives the
+  law's length :math:`a` as the data see it (:math:`i_{eq} \propto a + y`).
+* :func:`noise_levels` -- the sensors' noise before the ADCs: the current's from the one-step
+  regression's residual (:math:`n_{k+1} - \alpha n_k` has variance :math:`(1+\alpha^2)\sigma^2`),
+  the position's from the second difference :math:`y_k - (y_{k-1} + y_{k+1})/2` (variance
+  :math:`1.5\sigma^2` for white noise), each less its ADC's rounding (:math:`q^2/12`). Upper
+  bounds: what the ball and the coil do between samples adds to both.
+* :func:`loop_poles` -- the linearised sampled loop (plant discretised exactly over a sample
+  with the voltage held, the controller as it runs) at an operating point: its poles, and
+  whether all lie inside the unit circle, and the least damped oscillation (damping ratio and
+  frequency of :math:`s = \ln z / T_s`).
+"""
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+import scipy.linalg as sla
+
+from . import controller as _ctl
+from .physics import equilibrium_current_a, inductance_h
+
+__all__ = ["coil_time_constant", "equilibrium_currents", "noise_levels", "loop_poles"]
+
+
+def _levitated_steady(arrays: Mapping, cfg: Mapping, y_max_m: float = 0.012) -> np.ndarray:
+    y, i, u = (np.asarray(arrays[c], float) for c in ("y", "i", "u"))
+    vref = cfg["controller"]["v_ref_v"]
+    m = (y > 0.002) & (y < y_max_m) & (i > cfg["levitation"]["min_current_a"]) & (u > 0.05) & (u < vref - 0.05)
+    return m
+
+
+def coil_time_constant(arrays: Mapping, cfg: Mapping) -> dict:
+    """The coil's response to the command (module docstring): measured and model values."""
+    y, i, u = (np.asarray(arrays[c], float) for c in ("y", "i", "u"))
+    m = _levitated_steady(arrays, cfg)
+    k = np.nonzero(m[:-1] & m[1:])[0]
+    X = np.c_[i[k], u[k], np.ones(len(k))]
+    (alpha, beta, gamma), *_ = np.linalg.lstsq(X, i[k + 1], rcond=None)
+    ts = cfg["controller"]["ts_s"]
+    r_tot = cfg["coil"]["r_ohm"] + cfg["coil"]["r_shunt_ohm"]
+    ybar = float(np.mean(y[k]))
+    ind = float(inductance_h(ybar, cfg["magnet"]["k0_h"], cfg["magnet"]["k_h"], cfg["magnet"]["a_m"]))
+    gain = cfg["amplifier"]["v_max_v"] / cfg["controller"]["v_ref_v"]
+    return {"samples": int(len(k)), "y_mean_m": ybar,
+            "tau_s": float(-ts / np.log(alpha)), "tau_model_s": ind / r_tot,
+            "r_over_gain_ohm": float((1 - alpha) / beta), "r_over_gain_model_ohm": r_tot / gain,
+            "offset_v": float(-gamma / beta), "offset_model_v": 0.0,
+            "inductance_h_if_r_nominal": float(-ts / np.log(alpha)) * r_tot, "inductance_model_h": ind}
+
+
+def equilibrium_currents(arrays: Mapping, cfg: Mapping, window_s: float = 2.0) -> dict:
+    """Mean (y, i) over settled windows of a constant reference, and the force law's current."""
+    y, i, yd = (np.asarray(arrays[c], float) for c in ("y", "i", "yd"))
+    ts = cfg["controller"]["ts_s"]
+    w = int(round(window_s / ts))
+    ok = _levitated_steady(arrays, cfg)
+    rows = []
+    for a in range(0, len(y) - w + 1, w):
+        s = slice(a, a + w)
+        if np.ptp(yd[s]) == 0 and ok[s].all() and abs(np.mean(y[s]) - yd[a]) < 2e-4:
+            rows.append((float(np.mean(y[s])), float(np.mean(i[s])), float(yd[a])))
+    out = {"plateaus": len(rows)}
+    if not rows:
+        return out
+    ym, im, _ = (np.array(c) for c in zip(*rows))
+    b, c = cfg["ball"], cfg["magnet"]
+    pred = equilibrium_current_a(ym, b["mass_kg"], b["gravity_m_per_s2"], c["k_h"], c["a_m"])
+    out.update({"y_m": ym.tolist(), "i_a": im.tolist(), "i_model_a": pred.tolist(),
+                "ratio_mean": float(np.mean(im / pred))})
+    if np.ptp(ym) > 5e-4:
+        slope, icpt = np.polyfit(ym, im, 1)
+        out["length_m"] = float(icpt / slope)            # i proportional to (a + y)
+    return out
+
+
+def noise_levels(arrays: Mapping, cfg: Mapping) -> dict:
+    """Upper bounds of the sensors' noise before the ADCs (module docstring)."""
+    y, i, u = (np.asarray(arrays[c], float) for c in ("y", "i", "u"))
+    qy, qi = _ctl.position_lsb_m(cfg), _ctl.current_lsb_a(cfg)
+    m = _levitated_steady(arrays, cfg)
+    k = np.nonzero(m[:-1] & m[1:])[0]
+    X = np.c_[i[k], u[k], np.ones(len(k))]
+    sol, *_ = np.linalg.lstsq(X, i[k + 1], rcond=None)
+    r = i[k + 1] - X @ sol
+    s = 1.4826 * np.median(np.abs(r - np.median(r)))
+    si = np.sqrt(max(s * s / (1 + sol[0] ** 2) - qi * qi / 12, 0.0))
+    kk = np.nonzero(m[1:-1] & m[:-2] & m[2:])[0] + 1
+    d2 = y[kk] - 0.5 * (y[kk - 1] + y[kk + 1])
+    sy = np.sqrt(max(np.var(d2) / 1.5 - qy * qy / 12, 0.0))
+    return {"current_a": float(si), "position_m": float(sy), "current_counts": float(si / qi),
+            "position_counts": float(sy / qy)}
+
+
+def loop_poles(cfg: Mapping, y0_m: float, knobs: Mapping | None = None) -> dict:
+    """Poles of the linearised sampled loop at the position ``y0_m`` (module docstring).
+
+    The plant's states are (y, dy/dt, i); its input the voltage, held over a sample;
+    the controller's states the previous error and the two integrators (limits inactive).
+    ``knobs`` may set ``sensor_gain`` (the reading's slope) and ``eddy_tau_s``-free models only.
+    """
+    kn = dict(knobs or {})
+    b, mg_, co = cfg["ball"], cfg["magnet"], cfg["coil"]
+    m, g = b["mass_kg"], b["gravity_m_per_s2"]
+    k0, k, a = mg_["k0_h"], mg_["k_h"], mg_["a_m"]
+    r = co["r_ohm"] + co["r_shunt_ohm"]
+    gain = cfg["amplifier"]["v_max_v"] / cfg["controller"]["v_ref_v"]
+    gam = float(kn.get("sensor_gain", 1.0))
+    f_ext = float(kn.get("extra_force_n", 0.0))
+    s = 1.0 + y0_m / a
+    ind, dind = k0 + k / s, -k / (a * s * s)
+    i0 = float(equilibrium_current_a(y0_m, m, g, k, a, f_ext))
+    force = 0.5 * i0 * i0 * (-dind)
+    dfdy = -2.0 * force / (a + y0_m)
+    dfdi = 2.0 * force / i0
+    ac = np.array([[0.0, 1.0, 0.0], [-dfdy / m, 0.0, -dfdi / m], [0.0, -i0 * dind / ind, -r / ind]])
+    bc = np.array([[0.0], [0.0], [gain / ind]])
+    ts = cfg["controller"]["ts_s"]
+    mm = np.zeros((4, 4))
+    mm[:3, :3], mm[:3, 3:] = ac * ts, bc * ts
+    e = sla.expm(mm)
+    phi, gam_u = e[:3, :3], e[:3, 3:]
+    c = cfg["controller"]
+    kp, ki, kd, kpi, kii = c["kp_a_per_m"], c["ki_a_per_m_s"], c["kd_a_s_per_m"], c["kpi_v_per_a"], c["kii_v_per_a_s"]
+    # loop state z = (y, v, i, e_prev, I, J); rows: the controller's quantities as functions of z
+    err = np.array([-gam, 0, 0, 0, 0, 0.0])
+    integ = np.array([0, 0, 0, 0, 1, 0.0]) + ki * ts * err
+    idem = -(kp * err + integ + kd * (err - np.array([0, 0, 0, 1, 0, 0.0])) / ts)
+    ei = idem - np.array([0, 0, 1, 0, 0, 0.0])
+    intei = np.array([0, 0, 0, 0, 0, 1.0]) + kii * ts * ei
+    u = kpi * ei + intei
+    acl = np.zeros((6, 6))
+    acl[:3, :3] = phi
+    acl[:3] += gam_u @ u[None, :]
+    acl[3], acl[4], acl[5] = err, integ, intei
+    poles = np.linalg.eigvals(acl)
+    osc = poles[((np.abs(poles.imag) > 1e-9) | (poles.real < 0)) & (np.abs(poles) > 0)]
+    sp = np.log(osc.astype(complex)) / ts
+    zeta = -sp.real / np.abs(sp) if len(sp) else np.array([1.0])
+    j = int(np.argmin(zeta))
+    return {"y0_m": float(y0_m), "i0_a": i0, "poles": poles, "spectral_radius": float(np.max(np.abs(poles))),
+            "stable": bool(np.max(np.abs(poles)) < 1.0), "least_damping": float(zeta[j]),
+            "least_damped_hz": float(abs(sp[j].imag) / (2 * np.pi)) if len(sp) else 0.0}

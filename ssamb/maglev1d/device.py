@@ -1,0 +1,241 @@
+r"""The levitated ball as a :class:`ssamb.device.Device` of close the loop.
+
+Data: the rig logs ``y`` (m), ``i`` (A), ``u`` (V) and the reference ``yd`` (m) at 100 Hz
+(:mod:`.data`). A record's usable part is its levitated stretches (:mod:`.data`: the ball away
+from both stops by ``levitation.margin_m`` with the coil carrying at least
+``levitation.min_current_a``, for at least ``levitation.min_duration_s``), less their first
+``levitation.settle_s``. The rest -- the ball held by hand before the controller takes it, resting
+on the lower stop, stuck to the magnet, falling between them -- is left out: the model has the
+stops, but a drop or a stick is a threshold event whose timing no replay reproduces sample by
+sample.
+
+Replay: each levitated stretch is replayed from its first sample on, from the state the record
+gives there: the measured position (through the sensor model's inverse), its velocity from a
+local quadratic fit, the measured current, and the controller's exact internal state (the
+controller is run over the whole log, :mod:`.controller`; it reproduces the logged command, so
+its integrators are known). Outside the stretches the replay returns the record's own samples.
+The reference ``yd`` drives the replay. A replay is a realisation of the noise (:mod:`.physics`:
+sensor noise before the ADCs, a random force), drawn from ``seed``; ``seed=None`` replays without
+noise. It is deterministic given (config, effects, seed), and the device object pickles.
+"""
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from ..device import Device, FeatureSpec, Record, Replay
+from ..io import DataError
+from . import config as _config
+from . import controller as _ctl
+from . import physics as _phys
+from .data import (COLUMNS, levitated_mask, levitated_stretches, load_data, validate_arrays)
+
+__all__ = ["Maglev1D"]
+
+
+class Maglev1D(Device):
+    """The 1-DOF levitated steel ball (module docstring)."""
+
+    name = "maglev1d"
+    channels = ("y", "i", "u")
+    view_names = ("y", "i", "u")
+    cost_views = ("y", "i", "u")
+    units = {"y": "m", "i": "A", "u": "V", "yd": "m"}
+    error_groups = {}
+    features = FeatureSpec(
+        paths={"y/u": ("y", "y", "u"), "i/u": ("y", "i", "u")},
+        axis_views={"y": ("y", "i", "u")},
+        counterpart={},
+        line_views=("y", "i", "u"),
+        ripple_views=(),
+        band_views=("y", "i", "u"),
+    )
+    effects_package = "ssamb.maglev1d.effects"
+
+    # -- configuration
+    def default_config(self) -> dict:
+        return _config.load_config()
+
+    def load_config(self, path=None) -> dict:
+        return _config.load_config(path)
+
+    def priors(self, cfg: Mapping) -> dict:
+        return dict((cfg.get("closeloop") or {}).get("calibration") or {})
+
+    def floors(self, settings) -> dict:
+        """One ADC count over :math:`\\sqrt{12}` for ``y`` and ``i`` (at least the settings'
+        floors), and for ``u`` one PWM step over :math:`\\sqrt{12}` (the command's resolution at
+        the coil)."""
+        cfg = self.default_config()
+        qy, qi = _ctl.position_lsb_m(cfg), _ctl.current_lsb_a(cfg)
+        pwm = cfg["controller"]["v_ref_v"] / cfg["amplifier"]["pwm_steps"]
+        r12 = np.sqrt(12.0)
+        return {"y": max(qy / r12, float(getattr(settings, "floor_position_m", 0.0))),
+                "i": max(qi / r12, float(getattr(settings, "floor_current_a", 0.0))),
+                "u": pwm / r12}
+
+    # -- data
+    def load(self, path) -> tuple[dict, dict]:
+        return load_data(path)
+
+    def validate(self, arrays: Mapping, source: str) -> None:
+        """Shapes, values, the time base, and that the ball levitates somewhere in the log."""
+        cfg = self.default_config()
+        validate_arrays(arrays, source, float(cfg["controller"]["ts_s"]))
+        if not self.stretches(arrays, cfg):
+            lev, st = cfg["levitation"], cfg["stops"]
+            y = np.asarray(arrays["y"], float)
+            hint = ""
+            if np.max(np.abs(y)) > 10 * st["bottom_m"]:
+                hint = f"; its values reach {np.max(np.abs(y)):.4g}: in mm? this device reads metres"
+            elif np.max(np.abs(arrays["i"])) > 100:
+                hint = f"; the current reaches {np.max(np.abs(arrays['i'])):.4g}: in mA? this device reads amperes"
+            raise DataError(f"{source}: column 'y': the ball never levitates (no stretch of {lev['min_duration_s']:g} s "
+                            f"with y between {1e3 * (st['top_m'] + lev['margin_m']):.3g} and "
+                            f"{1e3 * (st['bottom_m'] - lev['margin_m']):.3g} mm and i >= {lev['min_current_a']:g} A){hint}")
+
+    def stretches(self, arrays: Mapping, cfg: Mapping) -> list[tuple[int, int]]:
+        """The levitated stretches ``[a, b)`` of a log (:mod:`.data`)."""
+        lev, st = cfg["levitation"], cfg["stops"]
+        m = levitated_mask(arrays["y"], arrays["i"], st["top_m"], st["bottom_m"], lev["margin_m"], lev["min_current_a"])
+        return levitated_stretches(m, int(round(lev["min_duration_s"] / cfg["controller"]["ts_s"])))
+
+    def usable_parts(self, arrays: Mapping, cfg: Mapping, stretches) -> tuple:
+        """The compared part of each levitated stretch: from ``levitation.settle_s`` after the
+        controller has caught the ball (its first sample within ``levitation.capture_m`` of the
+        reference) to the stretch's end. The lift-off or recovery before it crosses the large
+        gaps, where a force law fitted near the operating point is least trusted, in a transient
+        no replay starts from a known state."""
+        ts = float(cfg["controller"]["ts_s"])
+        lev = cfg["levitation"]
+        settle = int(round(lev["settle_s"] / ts))
+        near = np.abs(np.asarray(arrays["y"], float) - np.asarray(arrays["yd"], float)) <= lev["capture_m"]
+        out = []
+        for a, b in stretches:
+            hit = np.nonzero(near[a:b])[0]
+            if len(hit) and a + hit[0] + settle < b:
+                out.append((int(a + hit[0] + settle), int(b)))
+        return tuple(out)
+
+    def notes(self, arrays: Mapping, meta: Mapping, cfg: Mapping) -> list[str]:
+        """Valid but suspicious data: units off by 1000, channels that never move, a reference
+        outside the sensor's range, a command beyond the controller's limits, values off the
+        ADC grids (not the rig's own logs, or rescaled)."""
+        out = []
+        y, i, u, yd = (np.asarray(arrays[c], float) for c in ("y", "i", "u", "yd"))
+        qy, qi = _ctl.position_lsb_m(cfg), _ctl.current_lsb_a(cfg)
+        if np.median(np.abs(yd)) > 1.0:
+            out.append(f"yd: median {np.median(np.abs(yd)):.4g}: in mm? this device reads metres")
+        if np.max(np.abs(i)) > 20 * cfg["controller"]["i_ref_a"]:
+            out.append(f"i: up to {np.max(np.abs(i)):.4g} A, far beyond the current limit: in mA?")
+        if np.max(u) > 1.001 * cfg["controller"]["v_ref_v"] or np.min(u) < -1e-9:
+            out.append(f"u: {np.min(u):.4g} .. {np.max(u):.4g} V lies outside the controller's range "
+                       f"[0, {cfg['controller']['v_ref_v']:g}] V")
+        for c, a in (("y", y), ("i", i), ("u", u)):
+            if np.ptp(a) == 0:
+                out.append(f"{c}: constant ({a[0]:.4g}): the channel never moves")
+        for c, a, q in (("y", y, qy), ("i", i, qi)):
+            off = np.abs(a / q - np.round(a / q))
+            if np.median(off) > 0.05:
+                out.append(f"{c}: values are not whole ADC counts ({q:.4g} per count): filtered, rescaled, or another rig")
+        return out
+
+    def record(self, arrays: Mapping, meta: Mapping, cfg: Mapping, source: str) -> Record:
+        """The record: channels, the reference as input, the usable stretches, replay starts."""
+        arr = {c: np.ascontiguousarray(np.asarray(arrays[c], float)) for c in COLUMNS}
+        ts = float(cfg["controller"]["ts_s"])
+        stretches = self.stretches(arr, cfg)
+        if not stretches:
+            raise DataError(f"{source}: column 'y': the ball never levitates")
+        usable = self.usable_parts(arr, cfg, stretches)
+        qy, qi = _ctl.position_lsb_m(cfg), _ctl.current_lsb_a(cfg)
+        # the controller's state before every sample, from the log itself (it saw whole counts)
+        _, states = _ctl.run(qy * np.round(arr["y"] / qy), qi * np.round(arr["i"] / qi), arr["yd"], _ctl.gains_of(cfg))
+        yd = arr["yd"]
+        varies = np.ptp(yd) > 0
+        steps = np.count_nonzero(np.diff(yd))
+        kind = "constant" if not varies else ("steps" if steps <= 20 else "varying")
+        exc = {"kind": "reference", "profile": str(meta.get("profile", kind)), "shape": kind,
+               "yd_min_m": float(np.min(yd)), "yd_max_m": float(np.max(yd))}
+        n = len(yd)
+        left = n - sum(b - a for a, b in usable)
+        reason = (f"{left} of {n} samples left out: only the levitated stretches (ball away from both stops by "
+                  f"{1e3 * cfg['levitation']['margin_m']:g} mm, coil current >= {cfg['levitation']['min_current_a']:g} A, "
+                  f"for >= {cfg['levitation']['min_duration_s']:g} s) are compared, from "
+                  f"{cfg['levitation']['settle_s']:g} s after the ball first comes within "
+                  f"{1e3 * cfg['levitation']['capture_m']:g} mm of the reference; the ball held, on a stop, lifting "
+                  f"off or falling is not replayed") if left else ""
+        m = dict(meta)
+        m.update({"stretches": [list(s) for s in stretches], "controller_states": states, "t0_s": float(arr["t"][0]),
+                  "source": source})
+        return Record(device=self, fs_hz=1.0 / ts, channels={c: arr[c] for c in self.channels}, inputs={"yd": yd},
+                      excitation=exc, excited_axes=("y",) if varies else (), signal={"y": yd} if varies else {},
+                      n_period=None, lines_hz=None, start="levitated" if stretches[0][0] == 0 else "held",
+                      settle_s=float(cfg["levitation"]["settle_s"]), acquisition={}, device_lines_hz=(),
+                      usable=usable, usable_reason=reason, meta=m)
+
+    # -- replay
+    def knobs(self, cfg: Mapping, effects: list) -> dict:
+        """The effect knobs of the kernel (:data:`ssamb.maglev1d.physics.KNOBS`) for ``effects``."""
+        kn = _phys.neutral_knobs()
+        lib = self.effects
+        for e in effects or []:
+            e = self.validate_effect(e)
+            lib[e["name"]].apply(kn, e, cfg)
+        return kn
+
+    def initial_states(self, record: Record, cfg: Mapping, kn: Mapping, segments) -> np.ndarray:
+        """``(n_segments, 7)`` initial states of the replay (module docstring)."""
+        y = record.channels["y"]
+        i = record.channels["i"]
+        u = record.channels["u"]
+        ts = 1.0 / record.fs_hz
+        states = record.meta["controller_states"]
+        out = np.zeros((len(segments), 7))
+        for j, (a, b) in enumerate(segments):
+            lo, hi = max(a - 3, 0), min(a + 4, len(y))
+            tt = (np.arange(lo, hi) - a) * ts
+            c = np.polyfit(tt, y[lo:hi], 2) if hi - lo >= 3 else np.array([0.0, 0.0, y[a]])
+            reading, slope = y[a], c[1]
+            g, q2 = kn["sensor_gain"], kn["sensor_quadratic_per_m"]
+            y0 = (reading - kn["sensor_offset_m"]) / g
+            for _ in range(3):                  # invert reading = g y + o + q2 y^2
+                y0 = (reading - kn["sensor_offset_m"] - q2 * y0 * y0) / g
+            v0 = slope / (g + 2 * q2 * y0)
+            i0 = max((i[a] - kn["current_offset_a"]) / kn["current_gain"], 0.0)
+            out[j] = [y0, v0, i0, states[a, 0], states[a, 1], states[a, 2], u[a - 1] if a > 0 else 0.0]
+        return out
+
+    def replay(self, cfg: Mapping, record: Record, effects: list, n: int, seed: int | None) -> Replay:
+        """The model's ``y, i, u`` over the first ``n`` samples (module docstring)."""
+        n = int(min(n, record.n)) if n is not None else record.n
+        kn = self.knobs(cfg, effects)
+        p = _phys.knobs_of(cfg, kn)
+        segs = [(a, min(b, n)) for a, b in record.usable if a < n]
+        init = self.initial_states(record, cfg, kn, segs)
+        noise = None if seed is None else np.ascontiguousarray(np.random.default_rng(seed).standard_normal((n, 3)).T)
+        out = _phys.simulate(p, _ctl.gains_of(cfg), record.inputs["yd"][:n], segs, init, noise,
+                             t0_s=record.meta.get("t0_s", 0.0))
+        ch = {}
+        for c in self.channels:
+            a = record.channels[c][:n].copy()
+            sim = out[c]
+            ok = np.isfinite(sim)
+            a[ok] = sim[ok]
+            ch[c] = a
+        contact = False
+        for a, b in record.usable:
+            if a < n and np.any(out["contact"][a:min(b, n)]):
+                contact = True
+        return Replay(channels=ch, contact=contact)
+
+    def measured_contact(self, record: Record, cfg: Mapping, settings) -> bool:
+        """Whether the measured ball comes within a count of a stop in the usable part."""
+        y = record.channels["y"]
+        st = cfg["stops"]
+        q = _ctl.position_lsb_m(cfg)
+        for a, b in record.usable:
+            if np.any(y[a:b] <= st["top_m"] + q) or np.any(y[a:b] >= st["bottom_m"] - q):
+                return True
+        return False

@@ -1,0 +1,2 @@
+"""The levitated ball's effect library: one module per effect (``MODULES``)."""
+MODULES = []

@@ -1,0 +1,147 @@
+"""The levitated ball as a close-the-loop device: config, records, the controller check, replay."""
+import pickle
+import re
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ssamb.config import ConfigError
+from ssamb.device import Device, get_device
+from ssamb.io import DataError
+from ssamb.maglev1d import controller
+from ssamb.maglev1d.config import load_config
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = {p.stem.split("_")[1]: p for p in sorted((ROOT / "resources" / "maglev1d").glob("dataset_*.npz"))}
+DEV = get_device("maglev1d")
+CFG = DEV.default_config()
+
+
+def _record(name):
+    arrays, meta = DEV.load(DATA[name])
+    DEV.validate(arrays, str(DATA[name]))
+    return DEV.record(arrays, meta, CFG, str(DATA[name]))
+
+
+def test_registered_device():
+    assert isinstance(DEV, Device) and DEV.name == "maglev1d"
+    assert DEV.channels == ("y", "i", "u") and all(DEV.unit(c) for c in DEV.channels)
+    for key in DEV.priors(CFG):
+        node = CFG
+        for part in key.split("."):
+            node = node[part]
+        assert isinstance(node, float)
+
+
+def test_every_config_value_has_a_reason_and_units():
+    text = resources.files("ssamb.maglev1d").joinpath("config.yaml").read_text()
+    for line in text.splitlines():
+        m = re.match(r"\s*([\w.]+):\s*([^#\s][^#]*?)\s*(#.*)?$", line)
+        if m and m.group(2):
+            assert m.group(3), f"no reason: {line}"
+
+
+def test_config_errors_name_the_key(tmp_path):
+    p = tmp_path / "c.yaml"
+    p.write_text("ball: {mass_kg: -1}\n")
+    with pytest.raises(ConfigError, match=r"c.yaml: key 'ball.mass_kg'"):
+        load_config(p)
+    p.write_text("ball: {weight_kg: 1}\n")
+    with pytest.raises(ConfigError, match=r"key 'ball.weight_kg': unknown"):
+        load_config(p)
+    p.write_text("closeloop: {calibration: {ball.colour: 0.1}}\n")
+    with pytest.raises(ConfigError, match=r"closeloop.calibration.ball.colour"):
+        load_config(p)
+    p.write_text("coil: {r_ohm: 3.0}\n")
+    assert load_config(p)["coil"]["r_ohm"] == 3.0 and load_config(p)["ball"]["mass_kg"] == CFG["ball"]["mass_kg"]
+
+
+@pytest.mark.parametrize("name", ["constante", "escalon", "multiescalon"])
+def test_controller_reproduces_logged_command(name):
+    arrays, _ = DEV.load(DATA[name])
+    res = controller.check(arrays, CFG)
+    assert res["within_rounding"] == 1.0 and res["rms_v"] < 5e-5
+
+
+@pytest.mark.parametrize("name", ["senoidal", "chirp"])
+def test_controller_reproduces_command_with_the_references_formula(name):
+    """The log writes a moving reference rounded to 1 um; its formula (5 mm + 1 mm sin(2 pi 0.3 s)
+    and 5 mm + 0.8 mm sin(2 pi (0.1 s + 0.03 s^2)), s = t - 5 s) gives the command exactly."""
+    arrays, _ = DEV.load(DATA[name])
+    tau = np.arange(len(arrays["t"])) * 0.01 - 5.0
+    if name == "senoidal":
+        x = 1e-3 * np.sin(2 * np.pi * 0.3 * tau)
+    else:
+        x = 0.8e-3 * np.sin(2 * np.pi * (0.1 * tau + 0.03 * tau ** 2))
+    yd = 5e-3 + np.where(tau > 0, x, 0.0)
+    np.testing.assert_allclose(yd, arrays["yd"], atol=0.5e-6 + 1e-12)
+    assert controller.check(arrays, CFG, yd=yd)["within_rounding"] == 1.0
+    assert controller.check(arrays, CFG)["within_rounding"] < 1.0
+
+
+@pytest.mark.parametrize("name", sorted(DATA))
+def test_record_usable_stretches_levitate(name):
+    rec = _record(name)
+    assert rec.usable and rec.channels["y"].shape == (rec.n,)
+    y = rec.channels["y"]
+    for a, b in rec.usable:
+        assert b - a >= 100
+        assert np.all(y[a:b] >= CFG["levitation"]["margin_m"]) and np.all(y[a:b] <= CFG["stops"]["bottom_m"] - 1e-3)
+    assert not DEV.measured_contact(rec, CFG, None)
+
+
+def test_replay_deterministic_seeded_and_pickles():
+    rec = _record("escalon")
+    a = DEV.replay(CFG, rec, [], rec.n, 5)
+    b = pickle.loads(pickle.dumps(DEV)).replay(CFG, rec, [], rec.n, 5)
+    c = DEV.replay(CFG, rec, [], rec.n, 6)
+    for ch in DEV.channels:
+        np.testing.assert_array_equal(a.channels[ch], b.channels[ch])
+    assert not np.array_equal(a.channels["i"], c.channels["i"])
+    short = DEV.replay(CFG, rec, [], 1000, 5)
+    assert len(short.channels["u"]) == 1000
+    np.testing.assert_array_equal(short.channels["u"], a.channels["u"][:1000])
+    # outside the usable stretches the replay returns the record's own samples
+    a0 = rec.usable[0][0]
+    np.testing.assert_array_equal(a.channels["y"][:a0], rec.channels["y"][:a0])
+    assert DEV.replay(CFG, rec, [], rec.n, None).channels["y"].shape == (rec.n,)
+
+
+def _levitating_arrays(n=400, scale=1.0):
+    t = np.arange(n) * 0.01
+    return {"t": t, "y": np.full(n, 0.005) * scale, "i": np.full(n, 0.45), "u": np.full(n, 7.0), "yd": np.full(n, 0.005) * scale}
+
+
+def test_validate_accepts_levitation_and_rejects_a_ball_that_never_floats():
+    DEV.validate(_levitating_arrays(), "ok.csv")
+    a = _levitating_arrays()
+    a["y"][:] = CFG["stops"]["bottom_m"]
+    with pytest.raises(DataError, match=r"bad.csv: column 'y': the ball never levitates"):
+        DEV.validate(a, "bad.csv")
+    a = _levitating_arrays()
+    a["i"][:] = 0.02                                  # floating without current: held by hand
+    with pytest.raises(DataError, match="never levitates"):
+        DEV.validate(a, "bad.csv")
+    with pytest.raises(DataError, match="in mm"):
+        DEV.validate(_levitating_arrays(scale=1000.0), "mm.csv")
+
+
+def test_notes_flag_units():
+    a = _levitating_arrays()
+    a["i"] = a["i"] * 1000
+    assert any("mA" in s for s in DEV.notes(a, {}, CFG))
+
+
+def test_cli_style_csv_end_to_end(tmp_path):
+    """A user's CSV with the columns t,y,i,u,yd (and an extra one) loads, validates and records."""
+    arrays, _ = DEV.load(DATA["constante"])
+    p = tmp_path / "rig.csv"
+    cols = ["t", "y", "i", "u", "yd"]
+    rows = np.c_[[arrays[c] for c in cols]].T
+    p.write_text("t,y,i,u,yd,temperature_c\n" + "".join(",".join(repr(float(v)) for v in r) + ",21\n" for r in rows))
+    a2, m2 = DEV.load(p)
+    DEV.validate(a2, str(p))
+    rec = DEV.record(a2, m2, CFG, str(p))
+    assert rec.usable == _record("constante").usable
