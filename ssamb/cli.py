@@ -4,8 +4,11 @@ Commands (binding interface, ARCHITECTURE.md):
 
 * ``simulate --experiment NAME [--config FILE] [--set KEY=VALUE ...] --out FILE.npz``
 * ``rig SCENARIO.yaml --out FILE.npz``
-* ``closeloop DATA --out DIR [--device NAME] [--config FILE] [--workers N]`` (``NAME``: ``amb``,
-  the default, or ``maglev1d``; DATA in a format of that device)
+* ``closeloop DATA [DATA ...] [--hold DATA ...] --out DIR [--device NAME] [--config FILE] [--workers N]``
+  (``NAME``: ``amb``, the default, or ``maglev1d``; DATA in a format of that device). One file:
+  the analysis of that recording (its own split into fitting and held-out parts); several, or any
+  ``--hold``: calibrate on the DATA recordings, judge on the ``--hold`` ones
+  (:mod:`ssamb.closeloop.recordings`)
 
 Every command exits with status 2 and a one-line reason on bad input (an
 :class:`ssamb.errors.InputError`: a config, scenario, effect or data-file error), and writes no
@@ -46,8 +49,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
 
     p = sub.add_parser("closeloop", help="find what the model lacks from measured data")
-    p.add_argument("data", help="measured data (amb: .npz, or .csv with a .json sidecar; maglev1d: a CSV with "
-                                "columns t,y,i,u,yd, the rig's text log, or the converted .npz)")
+    p.add_argument("data", nargs="+", help="measured data (amb: .npz, or .csv with a .json sidecar; maglev1d: a CSV "
+                                           "with columns t,y,i,u,yd, the rig's text log, or the converted .npz)")
+    p.add_argument("--hold", action="append", default=[], metavar="DATA",
+                   help="a held-out recording: calibrate on DATA, report the errors on these (repeatable)")
     p.add_argument("--out", required=True, help="output directory (closeloop.json and figures)")
     p.add_argument("--device", default="amb", help="the device the data come from: amb (default) or maglev1d")
     p.add_argument("--config", default=None, help="config of the nominal model (default: the device's own)")
@@ -92,8 +97,14 @@ def _cmd_closeloop(args) -> None:
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers {args.workers}: must be at least 1")
     workers = args.workers or _cpus()
-    rep = run_closeloop(args.data, args.out, config=args.config, progress=not args.quiet, workers=workers,
-                        device=args.device)
+    if len(args.data) == 1 and not args.hold:
+        rep = run_closeloop(args.data[0], args.out, config=args.config, progress=not args.quiet, workers=workers,
+                            device=args.device)
+    else:
+        from .closeloop.recordings import run_recordings
+
+        rep = run_recordings(args.data, args.hold, args.out, config=args.config, device=args.device,
+                             progress=not args.quiet, workers=workers)
     print("\n".join(findings_text(rep)))
 
 

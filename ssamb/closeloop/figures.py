@@ -208,3 +208,91 @@ def make_figures(art: dict, rep: dict, out_dir: Path) -> list[str]:
     _evidence(art, out_dir, names)
     _ratios(art, meas, models, out_dir, names)
     return names
+
+
+def _holdout_overlay(h: dict, dev, out_dir: Path, names: list) -> None:
+    """One held-out recording: every channel measured, nominal and final, over the analysed part."""
+    import matplotlib.pyplot as plt
+
+    rec, sl = h["record"], h["range"]
+    t = np.arange(rec.n)[sl] / rec.fs_hz
+    fig, axs = plt.subplots(len(dev.channels), 1, figsize=(10, 2.3 * len(dev.channels)), sharex=True, squeeze=False)
+    for ax, c in zip(axs[:, 0], dev.channels):
+        k, u = _scale(dev, c)
+        ax.plot(t, k * rec.channels[c][sl], color="k", lw=0.6, label="measured")
+        ax.plot(t, k * h["nominal"][c][sl], color="tab:red", lw=0.8, label="published parameters")
+        ax.plot(t, k * h["final"][c][sl], color="tab:blue", lw=0.8, label="final model")
+        ax.set_ylabel(f"{c} ({u})")
+    axs[0, 0].legend(loc="upper right", fontsize=7, ncol=3)
+    axs[-1, 0].set_xlabel("time (s)")
+    fig.suptitle(f"Held-out recording {h['name']}: measured and replayed (mean of the replays)")
+    _save(fig, out_dir, f"holdout_{h['name']}.png", names)
+
+
+def _holdout_spectra(art: dict, out_dir: Path, names: list) -> None:
+    """Residual amplitude spectra of every channel on the held-out recordings, before and after."""
+    import matplotlib.pyplot as plt
+    from scipy import signal
+
+    dev = art["device"]
+    fig, axs = plt.subplots(1, len(dev.channels), figsize=(4.3 * len(dev.channels), 3.4), squeeze=False)
+    for ax, c in zip(axs[0], dev.channels):
+        k, u = _scale(dev, c)
+        for h in art["holdout"]:
+            rec, sl = h["record"], h["range"]
+            n = sl.stop - sl.start
+            nper = int(2 ** max(4, min(12, int(np.log2(max(n // 4, 16))))))
+            for label, col, ls in (("nominal", "tab:red", "-"), ("final", "tab:blue", "--")):
+                f, p = signal.welch(k * (rec.channels[c][sl] - h[label][c][sl]), fs=rec.fs_hz, nperseg=min(nper, n))
+                ax.loglog(f[1:], np.sqrt(np.maximum(p[1:], 1e-300)), ls, lw=0.7, color=col,
+                          label=f"{h['name']} {label}")
+        ax.set_title(c, fontsize=9)
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel(f"{u}/sqrt(Hz)", fontsize=8)
+    axs[0, 0].legend(fontsize=6)
+    fig.suptitle("Residual amplitude spectral density on the held-out recordings (red: published, blue: final)")
+    _save(fig, out_dir, "holdout_spectra.png", names)
+
+
+def _agreement(rep: dict, out_dir: Path, names: list) -> None:
+    """Per calibrated parameter: each fitting recording's estimate and the combined one, with two
+    standard errors, relative to the nominal value."""
+    import matplotlib.pyplot as plt
+
+    params = rep.get("parameters", {})
+    if not params:
+        return
+    fig, ax = plt.subplots(figsize=(8, 0.6 * len(params) + 1.6))
+    recs = list(rep.get("recordings", {}))
+    for i, (key, p) in enumerate(params.items()):
+        nom = p["nominal"] or 1.0
+        for j, r in enumerate(recs):
+            q = p["per_recording"].get(r)
+            if q is not None:
+                ax.errorbar(100 * (q["value"] / nom - 1), i + 0.12 * (j - len(recs) / 2), xerr=200 * q["se"] / abs(nom),
+                            fmt="o", ms=3, capsize=2, color=f"C{j}", label=r if i == 0 else None)
+        ax.errorbar(100 * (p["value"] / nom - 1), i + 0.3, xerr=200 * p["se"] / abs(nom), fmt="s", color="k", capsize=3,
+                    label="combined" if i == 0 else None)
+    ax.axvline(0, color="0.5", lw=0.6)
+    ax.set_yticks(range(len(params)))
+    ax.set_yticklabels(list(params), fontsize=8)
+    ax.set_xlabel("change from the published value (%), bars: 2 standard errors")
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title("Calibrated parameters per fitting recording and combined")
+    _save(fig, out_dir, "agreement.png", names)
+
+
+def make_recording_figures(art: dict, rep: dict, out_dir: Path) -> list[str]:
+    """Figures of an analysis over several recordings (:mod:`ssamb.closeloop.recordings`): the
+    held-out recordings overlaid (measured, published-parameter model, final model), their residual
+    spectra, and the calibrated parameters per recording; returns the file names."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    names: list = []
+    for h in art["holdout"]:
+        _holdout_overlay(h, art["device"], out_dir, names)
+    if art["holdout"]:
+        _holdout_spectra(art, out_dir, names)
+    _agreement(rep, out_dir, names)
+    return names

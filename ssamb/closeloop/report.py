@@ -212,7 +212,7 @@ def findings_text(rep: dict) -> list[str]:
     identify, with the reason; the effects with their parameters; the held-out error before
     and after.
     """
-    out = [f"summary: {rep['summary']}"]
+    out = [f"summary: {rep['summary']}"] if "summary" in rep else []
     for key, p in rep.get("parameters", {}).items():
         u = _unit(key)
         rel = f", {100 * p['relative_change']:+.2f} %" if p.get("relative_change") is not None else ""
@@ -223,7 +223,9 @@ def findings_text(rep: dict) -> list[str]:
         unc = e.get("uncertainty", {})
         par = ", ".join(f"{k} = {v:.4g}" + (f" +- {unc[k]:.2g}" if isinstance(unc.get(k), float) else "")
                         if isinstance(v, float) else f"{k} = {v}" for k, v in e["params"].items())
-        out.append(f"effect {e['name']}: {par} (removes {100 * e['error_reduction']:.0f} % of the residual excess)")
+        why = (f"removes {100 * e['error_reduction']:.0f} % of the residual excess" if e.get("error_reduction") is not None
+               else f"held-out z {e.get('holdout_z', float('nan')):.1f}")
+        out.append(f"effect {e['name']}: {par} ({why})")
     for c in rep["error_before"]:
         if "per_coil" not in rep["error_before"][c] and any(c in g.get("per_coil", {}) for g in rep["error_before"].values()):
             continue            # a channel of a group: the group's line stands for it

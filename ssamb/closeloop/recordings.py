@@ -1,0 +1,355 @@
+r"""Close the loop over several recordings of one device: calibrate on some, judge on the others.
+
+A rig's recordings share its physics but not their noise, their excitation or their mishaps (a
+ball that drops in one log and floats in another). Each **fitting recording** is analysed on its
+own (:func:`ssamb.closeloop.analyse`: calibration, effects, joint refit, with its own split); then
+
+1. **agreement**: a parameter identified in several recordings must agree between them. For two
+   estimates :math:`(p_a, s_a)`, :math:`(p_b, s_b)` the disagreement is
+   :math:`z_{ab} = (p_a - p_b)/\sqrt{s_a^2 + s_b^2}`; the parameter agrees when every pair has
+   :math:`|z_{ab}| \le` ``max_z`` (3);
+2. **combined model**: each parameter is the inverse-variance weighted mean of its identified
+   estimates, :math:`\bar p = \sum w_k p_k / \sum w_k`, :math:`w_k = s_k^{-2}`, with the standard
+   error :math:`(\sum w_k)^{-1/2}` times the Birge ratio :math:`\max(1, \sqrt{\chi^2/(K-1)})`,
+   :math:`\chi^2 = \sum w_k (p_k - \bar p)^2` (estimates that scatter beyond their errors widen
+   it); an effect found in any fitting recording enters with its parameters combined the same way;
+3. **held-out recordings**: the published-parameter (nominal) model and the combined model are
+   replayed on every held-out recording (the mean of ``replay_seeds`` replays). Per channel, the
+   rms error over the analysed part of the usable stretch, and the channel's noise floor: the rms
+   spread of single replays about their mean, times :math:`\sqrt{1 + 1/m}` (the recording is one
+   more realisation of the loop's noise, the prediction the mean of :math:`m`). A channel is
+   above its floor when the nominal model's error exceeds twice it;
+4. **held-out test of each effect**: the combined model with and without it, on the whitened
+   features of each held-out recording's two parts (:func:`ssamb.closeloop.fit.holdout_score`'s
+   statistic :math:`z`), combined over the :math:`K` parts as :math:`\sum z_k/\sqrt K`; an
+   effect stays in the findings only when this exceeds :math:`z_{1-\alpha}` (``alpha_accept``).
+
+The result has the top-level keys of a single recording's ``closeloop.json`` (``effects``,
+``unexplained``, ``error_before``/``error_after`` per channel, on the held-out recordings,
+``parameters``, ``not_identifiable``) and adds ``recordings`` (each fitting recording's findings),
+``agreement``, ``holdout`` (per held-out recording and channel) and ``effects_rejected``.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import numpy as np
+from scipy import stats
+
+__all__ = ["combine_estimates", "combine_parameters", "combine_effects", "analyse_recordings", "run_recordings"]
+
+
+def combine_estimates(values, ses, max_z: float = 3.0) -> dict:
+    """Inverse-variance weighted mean of independent estimates and their pairwise agreement
+    (module docstring, steps 1-2).
+
+    Returns ``{value, se, birge, max_pair_z, agree, n}``.
+
+    Examples
+    --------
+    >>> d = combine_estimates([1.0, 1.2], [0.1, 0.1])
+    >>> round(d["value"], 6), round(d["max_pair_z"], 4), d["agree"]
+    (1.1, 1.4142, True)
+    """
+    v = np.asarray(values, float)
+    s = np.asarray(ses, float)
+    w = 1.0 / np.maximum(s, 1e-300) ** 2
+    m = float(np.sum(w * v) / np.sum(w))
+    se = float(1.0 / math.sqrt(np.sum(w)))
+    k = len(v)
+    chi2 = float(np.sum(w * (v - m) ** 2))
+    birge = math.sqrt(chi2 / (k - 1)) if k > 1 else 1.0
+    zmax = 0.0
+    for a in range(k):
+        for b in range(a + 1, k):
+            zmax = max(zmax, abs(v[a] - v[b]) / math.hypot(s[a], s[b]))
+    return {"value": m, "se": se * max(1.0, birge), "birge": birge, "max_pair_z": zmax,
+            "agree": bool(zmax <= max_z), "n": k}
+
+
+def combine_parameters(reports: Mapping[str, dict], max_z: float = 3.0) -> tuple[dict, dict, dict]:
+    """The calibrated parameters of several recordings' ``closeloop.json``: combined values,
+    agreement, and the parameters no recording identified (with each recording's reason).
+
+    Returns ``(parameters, agreement, not_identifiable)``: ``parameters`` in the format of
+    ``closeloop.json`` (``value``, ``se``, ``nominal``, ``relative_change``, ``identifiable``) plus
+    ``per_recording``; ``agreement`` per parameter identified in two or more recordings.
+    """
+    keys = list(dict.fromkeys(k for r in reports.values() for k in r.get("parameters", {})))
+    params, agree = {}, {}
+    for key in keys:
+        per = {n: r["parameters"][key] for n, r in reports.items() if key in r.get("parameters", {})}
+        c = combine_estimates([p["value"] for p in per.values()], [p["se"] for p in per.values()], max_z)
+        nominal = next(iter(per.values()))["nominal"]
+        params[key] = {"value": c["value"], "se": c["se"], "nominal": nominal,
+                       "relative_change": c["value"] / nominal - 1.0 if nominal else None,
+                       "change": c["value"] - nominal, "identifiable": True,
+                       "per_recording": {n: {"value": p["value"], "se": p["se"]} for n, p in per.items()}}
+        if len(per) > 1:
+            agree[key] = {"max_pair_z": c["max_pair_z"], "agree": c["agree"], "birge": c["birge"],
+                          "recordings": list(per)}
+    not_ident = {}
+    for n, r in reports.items():
+        for key, why in r.get("not_identifiable", {}).items():
+            if key not in params:
+                not_ident.setdefault(key, {})[n] = why
+    return params, agree, {k: "; ".join(f"{n}: {w}" for n, w in v.items()) for k, v in not_ident.items()}
+
+
+def _effect_key(spec: Mapping) -> tuple:
+    """Effects are the same when their name and their non-numeric parameters (an axis) agree."""
+    return (spec["name"],) + tuple(sorted((k, v) for k, v in spec.items() if k != "name" and isinstance(v, str)))
+
+
+def combine_effects(reports: Mapping[str, dict]) -> list[dict]:
+    """The effects found in the recordings, each once, with its numeric parameters combined over
+    the recordings that found it (weighted by their uncertainty where the report gives one).
+
+    Returns a list of ``{spec, found_in, uncertainty}`` (``spec``: the effect as the replay takes it).
+    """
+    groups: dict = {}
+    for n, r in reports.items():
+        unc = {}
+        for e in r.get("effects", []):
+            unc[_effect_key({"name": e["name"], **e["params"]})] = e.get("uncertainty", {})
+        for spec in r.get("final_model", {}).get("effects", []):
+            groups.setdefault(_effect_key(spec), []).append((n, spec, unc.get(_effect_key(spec), {})))
+    out = []
+    for key, items in groups.items():
+        spec = dict(items[0][1])
+        uncertainty = {}
+        for p, v in items[0][1].items():
+            if p == "name" or isinstance(v, str):
+                continue
+            vals = [float(s[p]) for _, s, _ in items]
+            ses = [float(u.get(p, 0.0)) or abs(val) * 1e-3 + 1e-300 for (_, _, u), val in zip(items, vals)]
+            c = combine_estimates(vals, ses)
+            spec[p] = c["value"]
+            uncertainty[p] = c["se"]
+        out.append({"spec": spec, "found_in": [n for n, _, _ in items], "uncertainty": uncertainty})
+    return out
+
+
+def _analysed_range(rec, settings) -> slice:
+    """The samples of a held-out recording that are judged: its longest usable stretch after the
+    start-up the analysis discards."""
+    from .data import usable_range
+
+    a, b = usable_range(rec)
+    return slice(max(a, int(math.ceil(settings.discard_s * rec.fs_hz))), b)
+
+
+def _channel_errors(dev, rec, sl: slice, nominal: dict, final: dict, runs: list) -> dict:
+    """Per channel: rms error of both models over ``sl``, the noise floor (module docstring) and
+    whether the nominal model's error stands above it."""
+    m = len(runs)
+    out = {}
+    for c in dev.channels:
+        y = rec.channels[c][sl]
+        spread = np.std([r[c][sl] for r in runs], axis=0, ddof=1) if m > 1 else np.zeros_like(y)
+        floor = float(np.sqrt(np.mean(spread ** 2)) * math.sqrt(1.0 + 1.0 / max(m, 1)))
+        before = float(np.sqrt(np.mean((y - nominal[c][sl]) ** 2)))
+        after = float(np.sqrt(np.mean((y - final[c][sl]) ** 2)))
+        out[c] = {"rms_before": before, "rms_after": after, "noise_rms": floor,
+                  "above_noise": bool(before > 2 * floor), "ratio": after / before if before > 0 else float("nan"),
+                  "samples": int(y.size)}
+    return out
+
+
+def _holdout_z(dev, name: str, arrays, meta, cfg, settings, overrides: dict, with_eff: list, without_eff: list,
+               workers: int) -> list[float]:
+    """Held-out statistic ``z`` of the model with an effect against the model without it, on the
+    two parts of one held-out recording (:func:`ssamb.closeloop.fit.holdout_score`'s form)."""
+    from .comparison import Comparison
+    from .data import make_split
+    from .fit import Base, _scaled
+    from .replay import Replayer
+
+    rec = dev.record(arrays, meta, cfg, name)
+    split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s, settings.min_holdout_s, name)
+    replay = Replayer(cfg, rec, workers=workers)
+    try:
+        cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings)
+        cmp.calibrate_noise(overrides, without_eff)
+        base = Base(overrides, without_eff, cmp.prediction(overrides, without_eff))
+        pred = cmp.prediction(overrides, with_eff)
+        out = []
+        for part in (cmp.fit, cmp.hold):
+            r0, r1 = _scaled(cmp, part, base, pred, overrides, with_eff)
+            nd = float(np.linalg.norm(r1 - r0))
+            out.append(float(r0 @ r0 - r1 @ r1) / (2 * nd) if nd > 0 else 0.0)
+        return out
+    finally:
+        replay.close()
+
+
+def analyse_recordings(fit: Mapping[str, tuple], hold: Mapping[str, tuple], cfg: Mapping, device="amb",
+                       workers: int = 1, progress: bool = False, reports: Mapping[str, dict] | None = None) -> dict:
+    """Calibrate on the fitting recordings, judge on the held-out ones (module docstring).
+
+    Parameters
+    ----------
+    fit, hold : mapping
+        ``name -> (arrays, meta)`` of the fitting and the held-out recordings (the device's data
+        format; ``fit`` may be empty when ``reports`` holds their analyses).
+    cfg : mapping
+        The device's configuration (its ``closeloop`` section sets the analysis).
+    device : str or ssamb.device.Device
+    workers : int
+        Processes for the independent replays.
+    progress : bool
+    reports : mapping, optional
+        ``name -> closeloop.json`` of fitting recordings already analysed (a workflow's earlier
+        jobs); recordings named in both are not analysed again.
+
+    Returns
+    -------
+    dict
+        The combined ``closeloop.json``.
+    """
+    return _analyse_recordings(fit, hold, cfg, device, workers, progress, reports)[0]
+
+
+def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
+    from ..device import get_device
+    from . import _analyse
+    from .replay import Replayer
+    from .settings import settings_from_config
+
+    dev = get_device(device)
+    settings = settings_from_config(cfg, dev)
+    reps = dict(reports or {})
+    for name, (arrays, meta) in fit.items():
+        if name not in reps:
+            reps[name] = _analyse(arrays, meta, cfg, source=name, progress=progress, workers=workers, device=dev)[0]
+    params, agree, not_ident = combine_parameters(reps)
+    found = combine_effects(reps)
+    overrides = {k: p["value"] for k, p in params.items()}
+    effects = [f["spec"] for f in found]
+    seeds = list(range(1, settings.replay_seeds + 1))
+    holdout, ev_z, contact, art = {}, {i: [] for i in range(len(found))}, {}, []
+    pooled = {c: {"before": [], "after": [], "noise": []} for c in dev.channels}
+    for name, (arrays, meta) in hold.items():
+        dev.validate(arrays, name)
+        rec = dev.record(arrays, meta, cfg, name)
+        sl = _analysed_range(rec, settings)
+        replay = Replayer(cfg, rec, workers=workers)
+        try:
+            nominal = replay.mean((), None, {}, seeds)
+            runs = replay.runs(effects, None, overrides, seeds)
+            final = replay.mean(effects, None, overrides, seeds)
+        finally:
+            replay.close()
+        errs = _channel_errors(dev, rec, sl, nominal, final, runs)
+        art.append({"name": name, "record": rec, "range": sl, "nominal": nominal, "final": final})
+        holdout[name] = {"channels": errs, "analysed_s": [sl.start / rec.fs_hz, sl.stop / rec.fs_hz],
+                         "usable_reason": rec.usable_reason, "final_model_contact": bool(final["delevitated"]),
+                         "measured_contact": bool(dev.measured_contact(rec, cfg, settings))}
+        contact[name] = holdout[name]["final_model_contact"] and not holdout[name]["measured_contact"]
+        for c, d in errs.items():
+            pooled[c]["before"].append((d["rms_before"] ** 2, d["samples"]))
+            pooled[c]["after"].append((d["rms_after"] ** 2, d["samples"]))
+            pooled[c]["noise"].append((d["noise_rms"] ** 2, d["samples"]))
+        for i in range(len(found)):
+            without = [e for j, e in enumerate(effects) if j != i]
+            ev_z[i] += _holdout_z(dev, name, arrays, meta, cfg, settings, overrides, effects, without, workers)
+    z_crit = float(stats.norm.isf(settings.alpha_accept))
+    kept, rejected = [], []
+    for i, f in enumerate(found):
+        zs = ev_z[i]
+        z = float(sum(zs) / math.sqrt(len(zs))) if zs else 0.0
+        entry = {"name": f["spec"]["name"], "params": {k: v for k, v in f["spec"].items() if k != "name"},
+                 "uncertainty": f["uncertainty"], "found_in": f["found_in"], "holdout_z": z, "holdout_parts": zs}
+        (kept if z > z_crit else rejected).append(entry)
+    for e in kept:
+        e["error_reduction"] = None
+    before = {c: _pool(v["before"]) for c, v in pooled.items()}
+    after = {c: _pool(v["after"]) for c, v in pooled.items()}
+    noise = {c: _pool(v["noise"]) for c, v in pooled.items()}
+    err_b = {c: {"rms": before[c], "noise_rms": noise[c], "above_noise": bool(before[c] > 2 * noise[c])}
+             for c in dev.channels}
+    err_a = {c: {"rms": after[c], "noise_rms": noise[c], "ratio_to_before": after[c] / before[c] if before[c] else None}
+             for c in dev.channels}
+    unexplained = any(err_a[c]["rms"] > 2 * noise[c] for c in dev.channels if err_b[c]["above_noise"])
+    rep = {"effects": kept, "unexplained": bool(unexplained), "error_before": err_b, "error_after": err_a,
+            "parameters": params, "not_identifiable": not_ident, "agreement": agree,
+            "effects_rejected": rejected, "holdout": holdout, "stops_hit_by_model_only": contact,
+            "recordings": {n: _brief(r) for n, r in reps.items()},
+            "validation": {"fit_recordings": list(reps), "holdout_recordings": list(hold),
+                           "errors_on": "held-out recordings", "alpha_accept": settings.alpha_accept},
+            "data": {"device": dev.name}}
+    return rep, {"device": dev, "holdout": art}
+
+
+def _pool(items: list) -> float:
+    """rms over several recordings from their mean squares and sample counts."""
+    n = sum(k for _, k in items)
+    return float(math.sqrt(sum(ms * k for ms, k in items) / n)) if n else float("nan")
+
+
+def _brief(rep: dict) -> dict:
+    """What the combined report keeps of one recording's analysis."""
+    return {k: rep.get(k) for k in ("summary", "parameters", "not_identifiable", "effects", "unexplained",
+                                    "error_before", "error_after", "validation", "notes", "final_model")}
+
+
+def run_recordings(fit_paths, hold_paths, out_dir, config=None, device="amb", progress: bool = True, workers: int = 1,
+                   reports: Mapping[str, str] | None = None) -> dict:
+    """Analyse recording files (:func:`analyse_recordings`) and write ``out_dir/closeloop.json``
+    and figures (replacing ``out_dir`` whole, as :func:`ssamb.closeloop.run_closeloop` does).
+
+    Parameters
+    ----------
+    fit_paths, hold_paths : sequence of path
+        Fitting and held-out recordings, in a format of the device; a recording is named by its
+        file's stem.
+    out_dir : path
+    config : path or mapping, optional
+        The device's configuration (default: its own).
+    device : str or ssamb.device.Device
+    progress : bool
+    workers : int
+    reports : mapping, optional
+        ``name -> closeloop.json path`` of fitting recordings analysed already.
+
+    Returns
+    -------
+    dict
+        The combined ``closeloop.json``.
+    """
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from ..device import get_device
+    from ..errors import InputError
+    from ..io import check_replaceable, read_json, replace_dir, write_json
+    from .figures import make_recording_figures
+
+    def owned(p: Path) -> bool:
+        return p.is_file() and (p.name == "closeloop.json" or p.suffix == ".png")
+
+    dev = get_device(device)
+    out_dir = Path(out_dir)
+    check_replaceable(out_dir, owned)
+    names = [Path(p).stem for p in list(fit_paths) + list(hold_paths)]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise InputError(f"recordings named twice (by file stem): {', '.join(dup)}")
+    if not hold_paths:
+        raise InputError("no held-out recording: name at least one (--hold)")
+    cfg = dict(config) if isinstance(config, Mapping) else dev.load_config(config)
+    fit = {Path(p).stem: dev.load(p) for p in fit_paths}
+    hold = {Path(p).stem: dev.load(p) for p in hold_paths}
+    done = {n: read_json(p) for n, p in (reports or {}).items()}
+    rep, art = _analyse_recordings(fit, hold, cfg, dev, workers, progress, done)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}."))
+    try:
+        rep["figures"] = make_recording_figures(art, rep, tmp)
+        write_json(tmp / "closeloop.json", rep)
+        replace_dir(tmp, out_dir, owned)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return rep
