@@ -20,6 +20,12 @@ parameters predict:
   the position's from the second difference :math:`y_k - (y_{k-1} + y_{k+1})/2` (variance
   :math:`1.5\sigma^2` for white noise), each less its ADC's rounding (:math:`q^2/12`). Upper
   bounds: what the ball and the coil do between samples adds to both.
+* :func:`start_estimate` -- what these checks say of the calibratable parameters, with the
+  published force law: the stage's output :math:`V_{max} = V_{ref} R/(R/g)` and drop
+  :math:`V_0 g` (coil and shunt resistance as published), the gap-independent inductance
+  :math:`k_0 = \tau R - k/(1 + \bar y/a)`, and the position sensor's scale and zero from the
+  plateaus' line :math:`i = s (y + A)`: :math:`g_s = \sqrt{2 m g/(k a)}/s`, :math:`o_s = a g_s - A`
+  (with one level, :math:`g_s = 1`). A start for the calibration, never its result.
 * :func:`loop_poles` -- the linearised sampled loop (plant discretised exactly over a sample
   with the voltage held, the controller as it runs) at an operating point: its poles, and
   whether all lie inside the unit circle, and the least damped oscillation (damping ratio and
@@ -35,7 +41,7 @@ import scipy.linalg as sla
 from . import controller as _ctl
 from .physics import equilibrium_current_a, inductance_h
 
-__all__ = ["coil_time_constant", "equilibrium_currents", "noise_levels", "loop_poles"]
+__all__ = ["coil_time_constant", "equilibrium_currents", "noise_levels", "loop_poles", "start_estimate"]
 
 
 def _levitated_steady(arrays: Mapping, cfg: Mapping, y_max_m: float = 0.012) -> np.ndarray:
@@ -128,7 +134,8 @@ def loop_poles(cfg: Mapping, y0_m: float, knobs: Mapping | None = None) -> dict:
     force = 0.5 * i0 * i0 * (-dind)
     dfdy = -2.0 * force / (a + y0_m)
     dfdi = 2.0 * force / i0
-    ac = np.array([[0.0, 1.0, 0.0], [-dfdy / m, 0.0, -dfdi / m], [0.0, -i0 * dind / ind, -r / ind]])
+    damp = float(kn.get("damping_n_s_per_m", 0.0))
+    ac = np.array([[0.0, 1.0, 0.0], [-dfdy / m, -damp / m, -dfdi / m], [0.0, -i0 * dind / ind, -r / ind]])
     bc = np.array([[0.0], [0.0], [gain / ind]])
     ts = cfg["controller"]["ts_s"]
     mm = np.zeros((4, 4))
@@ -156,3 +163,32 @@ def loop_poles(cfg: Mapping, y0_m: float, knobs: Mapping | None = None) -> dict:
     return {"y0_m": float(y0_m), "i0_a": i0, "poles": poles, "spectral_radius": float(np.max(np.abs(poles))),
             "stable": bool(np.max(np.abs(poles)) < 1.0), "least_damping": float(zeta[j]),
             "least_damped_hz": float(abs(sp[j].imag) / (2 * np.pi)) if len(sp) else 0.0}
+
+
+def start_estimate(arrays: Mapping, cfg: Mapping) -> dict:
+    """Dotted config key -> value that the checks imply (module docstring); {} without data."""
+    out = {}
+    c = coil_time_constant(arrays, cfg)
+    if c["samples"] < 50 or not (0 < c["tau_s"] < 1) or c["r_over_gain_ohm"] <= 0:
+        return out
+    r_tot = cfg["coil"]["r_ohm"] + cfg["coil"]["r_shunt_ohm"]
+    gain = r_tot / c["r_over_gain_ohm"]
+    out["amplifier.v_max_v"] = gain * cfg["controller"]["v_ref_v"]
+    out["amplifier.drop_v"] = max(c["offset_v"] * gain, 0.0)
+    mg_ = cfg["magnet"]
+    k0 = c["tau_s"] * r_tot - mg_["k_h"] / (1.0 + c["y_mean_m"] / mg_["a_m"])
+    if k0 > 0:
+        out["magnet.k0_h"] = k0
+    e = equilibrium_currents(arrays, cfg)
+    if e["plateaus"]:
+        b = cfg["ball"]
+        c0 = np.sqrt(2 * b["mass_kg"] * b["gravity_m_per_s2"] / (mg_["k_h"] * mg_["a_m"]))
+        ym, im = np.array(e["y_m"]), np.array(e["i_a"])
+        if "length_m" in e:
+            slope = np.polyfit(ym, im, 1)[0]
+            gs = c0 / slope
+            out["sensors.position_gain"] = float(gs)
+            out["sensors.position_offset_m"] = float(mg_["a_m"] * gs - e["length_m"])
+        else:
+            out["sensors.position_offset_m"] = float(np.mean(mg_["a_m"] + ym - im / c0))
+    return {k: float(v) for k, v in out.items()}

@@ -25,6 +25,8 @@ __all__ = ["default_config", "load_config", "validate", "get"]
 #: (lower, upper, inclusive lower) of each physical key; every other numeric key must be > 0
 _RANGES = {
     "stops.top_m": (0.0, 0.05, True),
+    "sensors.position_offset_m": (-0.01, 0.01, True),
+    "amplifier.drop_v": (0.0, 10.0, True),
     "stops.restitution": (0.0, 1.0, True),
     "noise.position_m": (0.0, 1e-3, True),
     "noise.current_a": (0.0, 1.0, True),

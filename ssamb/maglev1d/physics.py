@@ -34,8 +34,9 @@ force-producing current :math:`i_m` lagging the terminal current). The current c
 
 PWM stage: the command :math:`u` (V) becomes a duty :math:`D = \lfloor u N_{pwm}/V_{ref}\rfloor /
 N_{pwm}` (the 8-bit duty the acquisition program's ``esc_pwm = 254/Vref`` implies), applied as
-the average voltage :math:`v = D\,V_{max}` from the sample instant (plus a computation delay,
-an effect) until the next.
+the average voltage :math:`v = D\,V_{max} - V_d` (``amplifier.v_max_v``; the switch's and the
+freewheeling diode's drop ``amplifier.drop_v``, zero in the published model) from the sample
+instant (plus a computation delay, an effect) until the next.
 
 Stops: a ball reaching a stop loses its velocity (restitution :math:`e`; it rests when the
 rebound is below 10 mm/s) and stays in contact while the net force presses it there: on the
@@ -43,7 +44,8 @@ magnet while :math:`F > m g + f`, on the lower stop while :math:`F < m g + f`. I
 the force changes sign -- sticking and lift-off follow from the force law, no extra rule.
 
 Sensors: the position ADC count is :math:`\operatorname{round}(y_s / q_y)` clipped to
-:math:`[0, N_y]` (:math:`q_y` = 0.05/1023 m), of the sensor's reading :math:`y_s = y + n_y`; the
+:math:`[0, N_y]` (:math:`q_y` = 0.05/1023 m), of the sensor's reading
+:math:`y_s = g_s y + o_s + n_y` (scale and zero ``sensors.position_gain``/``position_offset_m``); the
 current ADC count likewise of :math:`i + n_i` (:math:`q_i = 5/(2.2\cdot 1023)` A). The noise terms
 are white, Gaussian, one draw per sample, their levels in the config (``noise``): a replay is a
 realisation of this noise (with quantisation, which is deterministic given the state). A random
@@ -75,13 +77,12 @@ KNOBS = (
     # noise
     "noise_position_m", "noise_current_a", "noise_force_n",
     # effects
-    "sensor_delay_s", "actuation_delay_s", "sensor_gain", "sensor_offset_m", "sensor_quadratic_per_m",
-    "extra_force_n", "eddy_tau_s", "saturation_per_a2", "remanence_a", "drop_v", "r_rate_ohm_per_s",
-    "current_offset_a", "current_gain",
+    "sensor_delay_s", "actuation_delay_s", "sensor_gain", "sensor_offset_m", "extra_force_n", "eddy_tau_s",
+    "saturation_per_a2", "drop_v", "r_rate_ohm_per_s", "current_offset_a",
 )
 _I = {n: j for j, n in enumerate(KNOBS)}
 (M, G, K0, K, A, R, VMAX, VREF, NPWM, QY, NY, QI, NI, YTOP, YBOT, REST, NSUB, SY, SI, SF, DY, DU, GY, OY,
- CY2, FEXT, TAUE, CSAT, IREM, VDROP, RRATE, IOFF, GI) = range(len(KNOBS))
+ FEXT, TAUE, CSAT, VDROP, RRATE, IOFF) = range(len(KNOBS))
 
 
 def knob_index(name: str) -> int:
@@ -91,9 +92,8 @@ def knob_index(name: str) -> int:
 def neutral_knobs() -> dict:
     """Effect knobs at 'no effect'."""
     return {"sensor_delay_s": 0.0, "actuation_delay_s": 0.0, "sensor_gain": 1.0, "sensor_offset_m": 0.0,
-            "sensor_quadratic_per_m": 0.0, "extra_force_n": 0.0, "eddy_tau_s": 0.0, "saturation_per_a2": 0.0,
-            "remanence_a": 0.0, "drop_v": 0.0, "r_rate_ohm_per_s": 0.0, "current_offset_a": 0.0,
-            "current_gain": 1.0}
+            "extra_force_n": 0.0, "eddy_tau_s": 0.0, "saturation_per_a2": 0.0, "drop_v": 0.0,
+            "r_rate_ohm_per_s": 0.0, "current_offset_a": 0.0}
 
 
 # -- the force law ----------------------------------------------------------------------------
@@ -120,8 +120,7 @@ def _deriv(p, y, vel, im, v, r, f, mode):
     s = 1.0 + y / a
     ind = p[K0] + p[K] / s
     dind = -p[K] / (a * s * s)
-    i_f = im + p[IREM]
-    force = 0.5 * i_f * i_f * (-dind) / (1.0 + p[CSAT] * i_f * i_f)
+    force = 0.5 * im * im * (-dind) / (1.0 + p[CSAT] * im * im)
     if mode == 0:
         dy = vel
         dv = p[G] + (f - force) / p[M]
@@ -137,8 +136,7 @@ def _deriv(p, y, vel, im, v, r, f, mode):
 def _net_accel(p, y, im, f):
     a = p[A]
     s = 1.0 + y / a
-    i_f = im + p[IREM]
-    force = 0.5 * i_f * i_f * p[K] / (a * s * s) / (1.0 + p[CSAT] * i_f * i_f)
+    force = 0.5 * im * im * p[K] / (a * s * s) / (1.0 + p[CSAT] * im * im)
     return p[G] + (f - force) / p[M]
 
 
@@ -266,10 +264,10 @@ def _simulate(p, g, yd, t0_s, seg_a, seg_b, init, ny, ni, nf, out_y, out_i, out_
                     yq = hist_y[0]
                 else:
                     yq = _hermite(hist_t[j - 1], hist_y[j - 1], hist_v[j - 1], hist_t[j], hist_y[j], hist_v[j], tq)
-            reading = p[GY] * yq + p[OY] + p[CY2] * yq * yq + p[SY] * ny[k]
+            reading = p[GY] * yq + p[OY] + p[SY] * ny[k]
             ym = _adc(reading, p[QY], p[NY])
             it = _terminal(p, st[0], st[2], v_prev, r)
-            im_meas = _adc(p[GI] * it + p[IOFF] + p[SI] * ni[k], p[QI], p[NI])
+            im_meas = _adc(it + p[IOFF] + p[SI] * ni[k], p[QI], p[NI])
             u = controller_step(ctl, ym, im_meas, yd[k], g)
             out_y[k] = ym
             out_i[k] = im_meas
@@ -376,4 +374,7 @@ def knobs_of(cfg, knobs: dict | None = None) -> np.ndarray:
     }
     v.update(neutral_knobs())
     v.update(knobs or {})
+    v["sensor_gain"] *= c["sensors"]["position_gain"]          # the sensor's nominal scale and zero,
+    v["sensor_offset_m"] += c["sensors"]["position_offset_m"]  # then an effect's on top
+    v["drop_v"] += c["amplifier"]["drop_v"]
     return np.array([float(v[n]) for n in KNOBS])

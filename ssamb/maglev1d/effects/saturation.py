@@ -1,0 +1,53 @@
+r"""``saturation``: the core saturates, the force grows slower than :math:`i^2`.
+
+Physics: :math:`F = F_{law}(y, i)/(1 + c\,i^2)` (knob ``saturation_per_a2``; coefficients add):
+the iron's permeability falls as the flux density rises, so the force at a current is lower
+than the reluctance law's, the more so the higher the current.
+
+Signature: to hold the ball the current rises by :math:`\Delta i \approx c\,i_0^3/2` (and the
+command with it), growing steeply with the operating current; the position is held. Evidence:
+positive offsets of ``i`` and ``u``, none of ``y``.
+
+Fit: :math:`c \ge 0`, started at :math:`2\Delta i/i_0^3`.
+"""
+from __future__ import annotations
+
+from ._common import entries, number, offset_claim, offset_evidence, operating_point, scalar_model
+
+NAME = "saturation"
+REQUIRED = ("coefficient_per_a2",)
+OPTIONAL = ()
+SIGNATURE = "positive offsets of the coil current and the command growing with the current cubed, none of the position"
+SEARCHABLE = True
+NEEDS_HINT = False
+KNOB = "saturation_per_a2"
+
+
+def validate(p: dict, where: str) -> dict:
+    return {"coefficient_per_a2": number(p, "coefficient_per_a2", where, 0.0, 10.0)}
+
+
+def apply(kn: dict, e: dict, cfg) -> None:
+    kn[KNOB] += float(e["coefficient_per_a2"])
+
+
+def evidence(ft, alpha: float, st) -> dict:
+    ev = offset_evidence(ft, alpha, ("i", "u"), ("y",))
+    if ev["details"]["i"]["mean"] <= 0:
+        ev.update(score=0.0, significant=False)
+    ev["hints"]["offset_i_a"] = ev["details"]["i"]["mean"]
+    return ev
+
+
+def claim(ft, hints: dict, df_hz: float, st) -> float:
+    return offset_claim(ft, ("i", "u"))
+
+
+def model(hints: dict, record, st):
+    _, i0 = operating_point(record)
+    c0 = 2.0 * max(hints.get("offset_i_a", 0.0), 0.0) / max(i0, 1e-3) ** 3
+    return scalar_model(NAME, "coefficient_per_a2", c0, 0.05, 0.0, 3.0)
+
+
+def report(m, theta, se, significant) -> list[dict]:
+    return entries(m, theta, se)

@@ -1,0 +1,171 @@
+"""The levitated ball's effect library: each module's interface, its evidence on hand-made
+features, and the signature it claims, checked on replays."""
+import copy
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ssamb.device import EffectModel, get_device
+from ssamb.maglev1d.effects import MODULES
+from ssamb.maglev1d.physics import neutral_knobs
+
+ROOT = Path(__file__).resolve().parent.parent
+DEV = get_device("maglev1d")
+CFG = DEV.default_config()
+SETTINGS = SimpleNamespace(calibration={})
+ALPHA = 1e-3
+
+#: a size of each effect that a replay resolves
+SIZES = {"sensor_delay": {"delay_s": 3e-3}, "actuation_delay": {"delay_s": 2e-3}, "sensor_gain": {"gain": 0.9},
+         "sensor_offset": {"offset_m": 2e-4}, "static_load": {"fy_n": 0.02}, "eddy_current": {"tau_s": 2e-3},
+         "saturation": {"coefficient_per_a2": 0.5}, "amplifier_drop": {"drop_v": 0.5},
+         "current_offset": {"offset_a": 0.02}, "resistance_drift": {"rate_ohm_per_s": 0.02}}
+
+
+def _features(offsets=None, ratios=None, windows=None):
+    off = {v: {"mean": 0.0, "se": 1.0, "z": 0.0} for v in ("y", "i", "u")}
+    for v, (mean, z) in (offsets or {}).items():
+        off[v] = {"mean": mean, "se": abs(mean / z) if z else 1.0, "z": z}
+    rat = {}
+    for p, (kind, z, val) in (ratios or {}).items():
+        r = {"alpha": 0.0, "se_alpha": 0.01, "z_alpha": 0.0, "gain": 1.0, "tau_s": 0.0, "se_tau_s": 1e-4,
+             "z_tau": 0.0, "chi2_alpha": 0.0, "chi2_tau": 0.0, "n_lines": 20, "axis": "y", "path": p}
+        if kind == "tau":
+            r.update(tau_s=val, z_tau=z, chi2_tau=z * z)
+        else:
+            r.update(alpha=np.log(val), gain=val, z_alpha=z, chi2_alpha=z * z)
+        rat[p] = r
+    return SimpleNamespace(offsets=off, ratios=rat, windows=windows or {})
+
+
+def _window(slope, n=20, se=0.01):
+    t = np.arange(n) * 1.0
+    return {"t_s": t, "mean": slope * t, "se": np.full(n, se), "chi2": 0.0, "k": n}
+
+
+#: hand-made features showing each effect's signature
+SIGNS = {
+    "sensor_delay": _features(ratios={"y/i": ("tau", 8.0, 3e-3)}),
+    "actuation_delay": _features(ratios={"i/u": ("tau", 8.0, 2e-3)}),
+    "sensor_gain": _features(ratios={"y/i": ("alpha", -8.0, 0.9)}),
+    "eddy_current": _features(ratios={"y/i": ("tau", 8.0, 2e-3), "i/u": ("tau", -6.0, -1e-3)}),
+    "static_load": _features(offsets={"i": (0.02, 9.0), "u": (0.2, 7.0)}),
+    "amplifier_drop": _features(offsets={"u": (0.5, 9.0)}),
+    "current_offset": _features(offsets={"i": (0.02, 9.0)}),
+    "resistance_drift": _features(windows={"u": _window(0.01), "i": _window(0.0)}),
+}
+#: effects that share a signature (told apart by the fit, not the evidence)
+SAME = {"static_load": {"sensor_offset", "saturation"}}
+
+
+@pytest.mark.parametrize("mod", MODULES, ids=lambda m: m.NAME)
+def test_module_interface(mod):
+    assert isinstance(mod.NAME, str) and mod.SIGNATURE and mod.REQUIRED
+    assert isinstance(mod.SEARCHABLE, bool) and isinstance(mod.NEEDS_HINT, bool)
+    e = DEV.validate_effect({"name": mod.NAME, **SIZES[mod.NAME]})
+    kn = neutral_knobs()
+    mod.apply(kn, e, CFG)
+    assert kn != neutral_knobs()                    # it enters the replay
+    rec = _record()
+    m = mod.model({}, rec, SETTINGS)
+    assert isinstance(m, EffectModel) and len(m.params) == len(m.theta0)
+    assert np.all(m.lower <= m.theta0) and np.all(m.theta0 <= m.upper)
+    for spec in m.build(m.theta0 + m.step):
+        DEV.validate_effect(spec)
+    rep = mod.report(m, m.theta0, m.step, np.ones(len(m.params), bool))
+    assert rep[0]["name"] == mod.NAME and set(rep[0]["params"]) == set(rep[0]["uncertainty"])
+
+
+def test_bad_effect_parameters_named():
+    from ssamb.errors import InputError
+
+    with pytest.raises(InputError, match="'sensor_delay'.*delay_s"):
+        DEV.validate_effect({"name": "sensor_delay", "delay_s": 0.02})
+    with pytest.raises(InputError, match="'static_load'.*fy_n.*finite"):
+        DEV.validate_effect({"name": "static_load", "fy_n": float("nan")})
+    with pytest.raises(InputError, match="unknown effect"):
+        DEV.validate_effect({"name": "unbalance", "speed_hz": 10})
+
+
+@pytest.mark.parametrize("name", sorted(SIGNS))
+def test_evidence_on_its_own_signature_only(name):
+    lib = DEV.effects
+    quiet = _features()
+    for other, mod in lib.items():
+        ev = mod.evidence(SIGNS[name], ALPHA, SETTINGS)
+        expect = other == name or other in SAME.get(name, set())
+        assert ev["significant"] == expect, (name, other, ev)
+        assert set(ev) >= {"score", "log10_p", "significant", "hints", "details"}
+        assert not mod.evidence(quiet, ALPHA, SETTINGS)["significant"]
+
+
+def test_hints_give_the_size():
+    lib = DEV.effects
+    assert lib["sensor_delay"].evidence(SIGNS["sensor_delay"], ALPHA, SETTINGS)["hints"]["delay_s"] == 3e-3
+    rec = _record()
+    m = lib["sensor_gain"].model(lib["sensor_gain"].evidence(SIGNS["sensor_gain"], ALPHA, SETTINGS)["hints"], rec, SETTINGS)
+    assert m.theta0[0] == pytest.approx(-0.1)
+    m = lib["amplifier_drop"].model({"offset_u_v": 1.0}, rec, SETTINGS)
+    assert m.theta0[0] == pytest.approx(CFG["amplifier"]["v_max_v"] / CFG["controller"]["v_ref_v"])
+
+
+def test_calibrated_sensor_and_stage_leave_their_effects_a_reason():
+    st = SimpleNamespace(calibration=DEV.priors(CFG))
+    rec = _record()
+    for name in ("sensor_gain", "sensor_offset", "amplifier_drop"):
+        assert isinstance(DEV.effects[name].model({}, rec, st), str)
+
+
+_REC = {}
+
+
+def _record():
+    if not _REC:
+        p = sorted((ROOT / "resources" / "maglev1d").glob("dataset_escalon_*.npz"))[0]
+        arrays, meta = DEV.load(p)
+        _REC["r"] = DEV.record(arrays, meta, CFG, str(p))
+        cfg = copy.deepcopy(CFG)
+        for k, v in DEV.initial_estimate(_REC["r"], CFG).items():
+            sec, key = k.split(".")
+            cfg[sec][key] = v
+        _REC["cfg"] = cfg
+    return _REC["r"]
+
+
+def _means(effects):
+    rec = _record()
+    rep = DEV.replay(_REC["cfg"], rec, effects, rec.n, None)
+    a, b = rec.usable[0]
+    return {c: float(np.mean(rep.channels[c][a:b])) for c in DEV.channels}, rep
+
+
+@pytest.mark.parametrize("name, shifted, clean", [
+    ("amplifier_drop", ("u",), ("i", "y")),
+    ("current_offset", ("i",), ("u", "y")),
+    ("static_load", ("i", "u"), ("y",)),
+    ("sensor_offset", ("i", "u"), ("y",)),
+])
+def test_offset_signatures_hold_in_replays(name, shifted, clean):
+    """The loop's integral actions put a force-like effect into i and u, the stage's drop into u
+    alone, the current reading's offset into i alone; the position is held (noise-free replays
+    of the escalon log from the data's start estimate)."""
+    base, _ = _means([])
+    eff, rep = _means([{"name": name, **SIZES[name]}])
+    assert not rep.contact
+    q = {"y": 0.05 / 1023, "i": 5 / 2.2 / 1023, "u": 9.86 / 254}
+    for v in shifted:
+        assert abs(eff[v] - base[v]) > 3 * q[v], (v, eff[v] - base[v])
+    for v in clean:
+        assert abs(eff[v] - base[v]) < max(0.2 * abs(eff[shifted[0]] - base[shifted[0]]) * q[v] / q[shifted[0]], q[v]), v
+
+
+def test_zero_size_effects_are_neutral():
+    rec = _record()
+    a = DEV.replay(_REC["cfg"], rec, [], rec.n, 3)
+    zero = [{"name": "sensor_delay", "delay_s": 0.0}, {"name": "static_load", "fy_n": 0.0},
+            {"name": "eddy_current", "tau_s": 0.0}, {"name": "sensor_gain", "gain": 1.0}]
+    b = DEV.replay(_REC["cfg"], rec, zero, rec.n, 3)
+    for c in DEV.channels:
+        np.testing.assert_array_equal(a.channels[c], b.channels[c])
