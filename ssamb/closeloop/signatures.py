@@ -56,7 +56,7 @@ def evidence_all(ft: Features, settings, device) -> dict:
     the effects: Bonferroni; the signature thresholds are the settings' own)."""
     lib = device.effects
     names = device.library
-    a = settings.alpha_evidence / len(names)
+    a = settings.alpha_evidence / max(len(names), 1)
     out = {}
     for name in names:
         d = lib[name].evidence(ft, a, settings)

@@ -39,3 +39,69 @@ rule closeloop:
         runtime=30,
     script:
         "../scripts/closeloop.py"
+
+
+# Real rigs of other devices (config closeloop.rigs): each fitting recording is analysed on its
+# own (rule closeloop_recording), then the calibrated parameters are combined and judged on the
+# held-out recordings (rule closeloop_rig; ssamb.closeloop.recordings). The device's own
+# configuration reaches the jobs through params.
+CLOSELOOP_RIGS = CLOSELOOP.get("rigs", {}) or {}
+
+
+def rig_device_config(wc):
+    """The configuration of a rig's device model (its own file, or the one the rig names)."""
+    from ssamb.device import get_device
+
+    spec = CLOSELOOP_RIGS[wc.rig]
+    return canonical(get_device(spec["device"]).load_config(spec.get("config")))
+
+
+rule closeloop_recording:
+    """Close the loop on one fitting recording of a real rig (its own fitting and held-out parts)."""
+    input:
+        data=lambda wc: CLOSELOOP_RIGS[wc.rig]["fit"][wc.recording],
+    output:
+        json="results/rigs/{rig}/{recording}/closeloop.json",
+    params:
+        cfg=rig_device_config,
+        device=lambda wc: CLOSELOOP_RIGS[wc.rig]["device"],
+    log:
+        "results/logs/rigs/{rig}/{recording}.log",
+    benchmark:
+        "results/benchmarks/rigs/{rig}/{recording}.tsv"
+    wildcard_constraints:
+        rig="[A-Za-z0-9_]+",
+        recording="[A-Za-z0-9_]+",
+    threads: 2
+    resources:
+        mem_mb=2000,
+        runtime=30,
+    script:
+        "../scripts/closeloop_recording.py"
+
+
+rule closeloop_rig:
+    """Combine a rig's fitting recordings and judge the result on its held-out recordings."""
+    input:
+        reports=lambda wc: [f"results/rigs/{wc.rig}/{r}/closeloop.json" for r in CLOSELOOP_RIGS[wc.rig]["fit"]],
+        fit=lambda wc: list(CLOSELOOP_RIGS[wc.rig]["fit"].values()),
+        hold=lambda wc: list(CLOSELOOP_RIGS[wc.rig]["hold"].values()),
+    output:
+        json="results/rigs/{rig}/closeloop.json",
+    params:
+        cfg=rig_device_config,
+        device=lambda wc: CLOSELOOP_RIGS[wc.rig]["device"],
+        fit=lambda wc: list(CLOSELOOP_RIGS[wc.rig]["fit"]),
+        hold=lambda wc: list(CLOSELOOP_RIGS[wc.rig]["hold"]),
+    log:
+        "results/logs/rigs/{rig}.log",
+    benchmark:
+        "results/benchmarks/rigs/{rig}.tsv"
+    wildcard_constraints:
+        rig="[A-Za-z0-9_]+",
+    threads: 2
+    resources:
+        mem_mb=2000,
+        runtime=30,
+    script:
+        "../scripts/closeloop_rig.py"
