@@ -355,6 +355,12 @@ class Device:
         """The model's logged channels over the first ``n`` samples of ``record``."""
         raise NotImplementedError
 
+    def checks(self, arrays: Mapping, cfg: Mapping) -> dict:
+        """Physical checks of the model with configuration ``cfg`` against one recording: each a
+        number computed from the data beside what the model predicts (``name -> dict``; the
+        report lists them). Default: none."""
+        return {}
+
     def measured_contact(self, record: Record, cfg: Mapping, settings) -> bool:
         """Whether the measured body touches a stop in the analysed part (a model that does is
         then not rejected for it)."""

@@ -26,7 +26,8 @@ STAGE_PNGS = (["model/fig4.png", "validation/fig9.png"]
               + [f"uncertainty/{s}_fig7.png" for s in ("plant", "amplifier", "selfsensing")]
               + [f"mu/{c}_fig8.png" for c in ("selfsensing", "amplifier", "plant", "all")]
               + [f"closeloop/{f}.png" for f in ("calibration", "features", "residual_time", "residual_spectra", "evidence",
-                                               "sensor_ratio")])
+                                               "sensor_ratio")]
+              + [f"rigs/toy/{f}.png" for f in ("holdout_c", "holdout_spectra", "agreement")])
 
 
 def _sim_npz(path: Path, n: int = 400) -> None:
@@ -48,6 +49,7 @@ def _results(tmp_path: Path, config: dict) -> Path:
         (res / p).parent.mkdir(parents=True, exist_ok=True)
         (res / p).write_bytes(b"\x89PNG\r\n\x1a\n")
     shutil.copy(FIX / "closeloop.json", res / "closeloop" / "closeloop.json")
+    shutil.copy(FIX / "rig_closeloop.json", res / "rigs" / "toy" / "closeloop.json")
     return res
 
 
@@ -180,3 +182,16 @@ def test_an_archive_without_git_is_named_by_its_sources_hash(tmp_path):
     (tmp_path / "a.py").write_text("x = 2\n")
     assert source_hash(tmp_path) != first and len(first) == 64
     assert source_revision(tmp_path).startswith(("git ", "sha256 "))
+
+
+def test_rig_section_lists_recordings_agreement_and_held_out_errors(ctx):
+    """The real-rig section: parameters per recording with their agreement, the held-out errors per
+    recording and channel, the effects with their held-out verdict, the physical checks."""
+    sec = sections.rigs(ctx)
+    heads = [t.header[0] for t in sec.tables()]
+    assert heads[:2] == ["parameter", "recording"]
+    par = sec.tables()[0]
+    assert par.rows[0][0] == "plant.b_gain" and "agree" in par.rows[0][-1]
+    err = sec.tables()[1]
+    assert {r[1] for r in err.rows} == {"y", "u"} and any(r[0] == "all held out" for r in err.rows)
+    assert any(t.header[0] == "effect" and t.rows[0][0] == "bias" for t in sec.tables())

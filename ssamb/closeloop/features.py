@@ -339,6 +339,8 @@ def _values(layout: Layout, x: np.ndarray, seg: slice) -> Features:
         return Features(np.real(X[:, 0]), X[:, layout.bins].T, lines, empty, empty, empty)
     lines = line_phasors(fr, x, layout.lines_hz)
     nper, kb = layout.nperseg, layout.bins
+    if not layout.axes:                   # nothing excited (levitation at rest): no cross-spectra
+        return Features(x.sum(axis=1), np.zeros((0, len(kb), x.shape[0]), complex), lines, empty, empty, empty)
     Y = _welch_segments(x, nper)[:, :, kb]
     Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
     F = np.einsum("svk,sak->akv", Y, Sa.conj()) / Y.shape[0]
@@ -376,21 +378,26 @@ def _welch_segments(x: np.ndarray, nper: int) -> np.ndarray:
 
 def _welch(layout: Layout, x: np.ndarray, seg: slice, fl2: np.ndarray) -> Features:
     fr, nper, kb = layout.frame, layout.nperseg, layout.bins
-    Y = _welch_segments(x, nper)[:, :, kb]                            # S x V x K
-    Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
-    n_seg = Y.shape[0]
-    k_eff = max(1.0, n_seg / 1.06)                                    # Hann, 50 % overlap
-    F = np.einsum("svk,sak->akv", Y, Sa.conj()) / n_seg               # A x K x V
-    # per bin, the noise: residual of the regression of Y on the excitations across segments
-    Cn = np.zeros((len(kb), x.shape[0], x.shape[0]), complex)
-    for j in range(len(kb)):
-        A = Sa[:, :, j]
-        coef, *_ = np.linalg.lstsq(A, Y[:, :, j], rcond=None)
-        R = Y[:, :, j] - A @ coef
-        Cn[j] = R.T @ R.conj() / max(n_seg - A.shape[1], 1)
-    Cn = _smooth_cov(Cn) + np.diag(fl2 * np.sum(signal.windows.hann(nper, sym=False) ** 2))[None]
-    s2 = np.mean(np.abs(Sa) ** 2, axis=0)                             # A x K
-    cov = Cn[None] * (s2[:, :, None, None] / k_eff)
+    nv = x.shape[0]
+    if layout.axes:
+        Y = _welch_segments(x, nper)[:, :, kb]                        # S x V x K
+        Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
+        n_seg = Y.shape[0]
+        k_eff = max(1.0, n_seg / 1.06)                                # Hann, 50 % overlap
+        F = np.einsum("svk,sak->akv", Y, Sa.conj()) / n_seg           # A x K x V
+        # per bin, the noise: residual of the regression of Y on the excitations across segments
+        Cn = np.zeros((len(kb), nv, nv), complex)
+        for j in range(len(kb)):
+            A = Sa[:, :, j]
+            coef, *_ = np.linalg.lstsq(A, Y[:, :, j], rcond=None)
+            R = Y[:, :, j] - A @ coef
+            Cn[j] = R.T @ R.conj() / max(n_seg - A.shape[1], 1)
+        Cn = _smooth_cov(Cn) + np.diag(fl2 * np.sum(signal.windows.hann(nper, sym=False) ** 2))[None]
+        s2 = np.mean(np.abs(Sa) ** 2, axis=0)                         # A x K
+        cov = Cn[None] * (s2[:, :, None, None] / k_eff)
+    else:                                 # nothing excited (levitation at rest): no cross-spectra
+        F = np.zeros((0, len(kb), nv), complex)
+        cov = np.zeros((0, len(kb), nv, nv), complex)
     x0 = x - x.mean(axis=1, keepdims=True)
     f, P = signal.csd(x0[:, None, :], x0[None, :, :], fs=fr.fs_hz, nperseg=nper, noverlap=nper // 2, window="hann",
                       detrend="constant", axis=-1)

@@ -254,6 +254,14 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
         for i in range(len(found)):
             without = [e for j, e in enumerate(effects) if j != i]
             ev_z[i] += _holdout_z(dev, name, arrays, meta, cfg, settings, overrides, effects, without, workers)
+    from ..config import apply_overrides
+
+    final_cfg = apply_overrides(cfg, overrides) if overrides else cfg
+    checks = {}
+    for name, (arrays, meta) in {**fit, **hold}.items():
+        c = {"published": dev.checks(arrays, cfg), "final": dev.checks(arrays, final_cfg)}
+        if c["published"] or c["final"]:
+            checks[name] = c
     z_crit = float(stats.norm.isf(settings.alpha_accept))
     kept, rejected = [], []
     for i, f in enumerate(found):
@@ -275,11 +283,25 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
     rep = {"effects": kept, "unexplained": bool(unexplained), "error_before": err_b, "error_after": err_a,
             "parameters": params, "not_identifiable": not_ident, "agreement": agree,
             "effects_rejected": rejected, "holdout": holdout, "stops_hit_by_model_only": contact,
+            "physical_checks": checks, "effects_not_identifiable": _not_identifiable_effects(dev, hold, cfg, settings),
             "recordings": {n: _brief(r) for n, r in reps.items()},
             "validation": {"fit_recordings": list(reps), "holdout_recordings": list(hold),
                            "errors_on": "held-out recordings", "alpha_accept": settings.alpha_accept},
             "data": {"device": dev.name}}
     return rep, {"device": dev, "holdout": art}
+
+
+def _not_identifiable_effects(dev, recordings: Mapping, cfg, settings) -> dict:
+    """The library effects the device says these recordings cannot identify, with its reason
+    (:meth:`ssamb.device.Device.effect_model` returns a reason instead of a parameterisation)."""
+    out = {}
+    for name, (arrays, meta) in recordings.items():
+        rec = dev.record(arrays, meta, cfg, name)
+        for eff in dev.library:
+            why = dev.effect_model(eff, {}, rec, settings)
+            if isinstance(why, str):
+                out.setdefault(eff, why)
+    return out
 
 
 def _pool(items: list) -> float:

@@ -167,6 +167,8 @@ def build_report(rec, split, search, settings, source: str, timing: dict) -> dic
         "parameters": params, "not_identifiable": not_ident, "calibration": cal_block,
         "validation": {"fit_fraction": split.fit_fraction, "fit_s": [split.i0 / fs, split.i_fit / fs],
                        "holdout_s": [split.i_fit / fs, split.i_end / fs], "discarded_s": split.i0 / fs,
+                       "usable_s": [[a / fs, b / fs] for a, b in (rec.usable or ((0, rec.n),))],
+                       "usable_reason": rec.usable_reason,
                        "whole_periods": split.n_period is not None,
                        "period_s": None if split.n_period is None else split.n_period / fs,
                        "errors_on": "held-out part"},

@@ -146,7 +146,7 @@ class Settings:
     contact_fraction: float = 0.95
 
 
-_WORKFLOW_KEYS = ("datasets", "default_dataset")
+_WORKFLOW_KEYS = ("datasets", "default_dataset", "rigs")
 
 
 def _err(msg: str):

@@ -14,7 +14,7 @@ CLOSELOOP_FIGURES = ["calibration.png", "features.png", "residual_time.png", "re
 def closeloop_config(wildcards):
     """Physics of the nominal model plus the analysis settings (not the data set list)."""
     cfg = _sim_config(config)
-    cfg["closeloop"] = {k: v for k, v in CLOSELOOP.items() if k not in ("datasets", "default_dataset")}
+    cfg["closeloop"] = {k: v for k, v in CLOSELOOP.items() if k not in ("datasets", "default_dataset", "rigs")}
     return cfg
 
 
