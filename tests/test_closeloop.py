@@ -250,7 +250,9 @@ def test_closeloop_settings_and_schema_agree():
     schema = yaml.safe_load((REPO / "workflow" / "schemas" / "config.schema.yaml").read_text())
     props = schema["properties"]["closeloop"]["properties"]
     fields = {f for f in Settings.__dataclass_fields__}
-    assert set(props) - {"datasets", "default_dataset"} == fields
+    from ssamb.closeloop.settings import _WORKFLOW_KEYS
+
+    assert set(props) - set(_WORKFLOW_KEYS) == fields
     assert set(props["estimate"]["properties"]) == set(EstimateSettings.__dataclass_fields__)
 
 
