@@ -28,3 +28,4 @@ rule all:
         [f"results/{r}summary.json" for r in SCENARIO_RUNS],
         expand("results/sim/{experiment}.npz", experiment=SIM_EXPERIMENTS),
         expand("results/closeloop/{dataset}/closeloop.json", dataset=CLOSELOOP_DATASETS),
+        expand("results/rigs/{rig}/closeloop.json", rig=CLOSELOOP_RIGS),

@@ -355,6 +355,13 @@ class Device:
         """The model's logged channels over the first ``n`` samples of ``record``."""
         raise NotImplementedError
 
+    def initial_estimate(self, record: Record, cfg: Mapping) -> dict:
+        """Where the calibration starts: dotted config key -> value that the data imply before any
+        replay (e.g. by physical checks), for a device whose nominal model is far enough from the
+        rig that a local search from it sees no gradient. The priors stay centred on the nominal
+        values. Default: none (the calibration starts at the nominal values)."""
+        return {}
+
     def checks(self, arrays: Mapping, cfg: Mapping) -> dict:
         """Physical checks of the model with configuration ``cfg`` against one recording: each a
         number computed from the data beside what the model predicts (``name -> dict``; the

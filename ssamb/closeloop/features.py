@@ -239,7 +239,8 @@ def replicate_factors(fs: list) -> tuple[np.ndarray, np.ndarray]:
     nu = 2 * (m - 1)
     med = (1 - 2 / (9 * nu)) ** 3
     ratio = (emp / np.maximum(pred, 1e-300)).reshape(-1, emp.shape[-1])
-    fac = np.maximum(np.median(ratio, axis=0) / med, 1.0)
+    # no excited bins (levitation at rest): the DC factor stands alone
+    fac = np.maximum(np.median(ratio, axis=0) / med, 1.0) if ratio.shape[0] else np.ones(emp.shape[-1])
     D = np.array([f.dc for f in fs])
     pred_dc = np.mean([np.diag(f.cov_dc) for f in fs], axis=0)
     fac_dc = np.maximum(D.var(axis=0, ddof=1) / np.maximum(pred_dc, 1e-300), fac)

@@ -323,9 +323,9 @@ def run_recordings(fit_paths, hold_paths, out_dir, config=None, device="amb", pr
 
     Parameters
     ----------
-    fit_paths, hold_paths : sequence of path
-        Fitting and held-out recordings, in a format of the device; a recording is named by its
-        file's stem.
+    fit_paths, hold_paths : sequence of path, or mapping of name -> path
+        Fitting and held-out recordings, in a format of the device; a recording given as a bare
+        path is named by its file's stem.
     out_dir : path
     config : path or mapping, optional
         The device's configuration (default: its own).
@@ -355,15 +355,22 @@ def run_recordings(fit_paths, hold_paths, out_dir, config=None, device="amb", pr
     dev = get_device(device)
     out_dir = Path(out_dir)
     check_replaceable(out_dir, owned)
-    names = [Path(p).stem for p in list(fit_paths) + list(hold_paths)]
+    def named(paths) -> list:
+        return list(paths.items()) if isinstance(paths, Mapping) else [(Path(p).stem, p) for p in paths]
+
+    fit_named, hold_named = named(fit_paths), named(hold_paths)
+    names = [n for n, _ in fit_named + hold_named]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise InputError(f"recordings named twice (by file stem): {', '.join(dup)}")
-    if not hold_paths:
+    if not hold_named:
         raise InputError("no held-out recording: name at least one (--hold)")
+    unknown = sorted(set(reports or {}) - {n for n, _ in fit_named})
+    if unknown:
+        raise InputError(f"analyses of recordings that are not fitting recordings: {', '.join(unknown)}")
     cfg = dict(config) if isinstance(config, Mapping) else dev.load_config(config)
-    fit = {Path(p).stem: dev.load(p) for p in fit_paths}
-    hold = {Path(p).stem: dev.load(p) for p in hold_paths}
+    fit = {n: dev.load(p) for n, p in fit_named}
+    hold = {n: dev.load(p) for n, p in hold_named}
     done = {n: read_json(p) for n, p in (reports or {}).items()}
     rep, art = _analyse_recordings(fit, hold, cfg, dev, workers, progress, done)
     out_dir.parent.mkdir(parents=True, exist_ok=True)

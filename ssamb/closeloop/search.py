@@ -434,7 +434,9 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     measured_contact = cmp.device.measured_contact(rec, cmp.replay.cfg, settings)
     out.nominal = cmp.prediction()
     t0 = time.perf_counter()
-    cal = calibrate_model(cmp, specs, [], est, settings.identifiable_ratio, settings.conflict_z,
+    init = cmp.device.initial_estimate(rec, cmp.replay.cfg) if specs else {}
+    start = np.array([sp.theta_of(init[sp.key]) if sp.key in init else 0.0 for sp in specs]) if init else None
+    cal = calibrate_model(cmp, specs, [], est, settings.identifiable_ratio, settings.conflict_z, start=start,
                           log=(lambda m: _log(progress, "  calibration " + m)) if progress else None)
     out.calibration = cal
     _log(progress, f"calibration: {sum(d['identified'] for d in cal.ident['per_parameter'].values())} of {len(specs)} "

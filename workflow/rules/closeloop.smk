@@ -61,7 +61,7 @@ rule closeloop_recording:
     input:
         data=lambda wc: CLOSELOOP_RIGS[wc.rig]["fit"][wc.recording],
     output:
-        json="results/rigs/{rig}/{recording}/closeloop.json",
+        json="results/rigs/recordings/{rig}/{recording}/closeloop.json",
     params:
         cfg=rig_device_config,
         device=lambda wc: CLOSELOOP_RIGS[wc.rig]["device"],
@@ -83,7 +83,7 @@ rule closeloop_recording:
 rule closeloop_rig:
     """Combine a rig's fitting recordings and judge the result on its held-out recordings."""
     input:
-        reports=lambda wc: [f"results/rigs/{wc.rig}/{r}/closeloop.json" for r in CLOSELOOP_RIGS[wc.rig]["fit"]],
+        reports=lambda wc: [f"results/rigs/recordings/{wc.rig}/{r}/closeloop.json" for r in CLOSELOOP_RIGS[wc.rig]["fit"]],
         fit=lambda wc: list(CLOSELOOP_RIGS[wc.rig]["fit"].values()),
         hold=lambda wc: list(CLOSELOOP_RIGS[wc.rig]["hold"].values()),
     output:

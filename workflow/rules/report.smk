@@ -59,7 +59,8 @@ rule summary:
 
 def report_inputs(wc):
     files = {"summary": "results/summary.json", "config_file": workflow.configfiles[0] if workflow.configfiles else "config.yaml",
-             "figures": [f"results/{p}" for p in REPORT_FIGURES]}
+             "figures": [f"results/{p}" for p in REPORT_FIGURES],
+             "rigs": expand("results/rigs/{rig}/closeloop.json", rig=CLOSELOOP_RIGS)}
     if wc.which or os.path.exists("results/study/study.json"):  # the default report too, once the study ran
         files["study"] = "results/study/study.json"
     return files

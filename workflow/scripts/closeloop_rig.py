@@ -8,6 +8,8 @@ from ssamb.stages import job_log
 with job_log(snakemake.log[0], "closeloop_rig"):  # noqa: F821
     p = snakemake.params  # noqa: F821
     reports = dict(zip(p.fit, snakemake.input.reports))  # noqa: F821
-    run_recordings(snakemake.input.fit, snakemake.input.hold, Path(snakemake.output.json).parent,  # noqa: F821
+    fit = dict(zip(p.fit, snakemake.input.fit))  # noqa: F821
+    hold = dict(zip(p.hold, snakemake.input.hold))  # noqa: F821
+    run_recordings(fit, hold, Path(snakemake.output.json).parent,  # noqa: F821
                    config=p.cfg, device=p.device, progress=True, workers=snakemake.threads,  # noqa: F821
                    reports=reports)
