@@ -1,0 +1,208 @@
+"""Close the loop on simulated levitation rigs: the randomized suite of the maglev1d device.
+
+    python bench/maglev_suite.py [--draws 24] [--null 20] [--seed 20261126] [--processes 2]
+                                 [--center results/rigs/maglev1d/closeloop.json] [--out suite.jsonl]
+
+Each draw builds a rig that is not the model: every calibratable parameter is drawn uniformly
+within one prior standard deviation of the rig's centre (the parameters the real recordings
+calibrated, from ``--center``; without it the values the device's physical checks imply on the
+step recording), rigs whose linearised loop is unstable at the operating point are drawn again
+(such a rig cannot levitate), and one library effect of the device with a size drawn from its
+range (:data:`SIZES`), or none in the null draws. The rig's data are a replay of that rig driven
+by a real recording's reference (drawn among the five), from that recording's states, with a
+seed of its own; the analysis (:func:`ssamb.closeloop.analyse`) sees only the data and the
+published-parameter model.
+
+A draw with an effect passes when the effect is found (first in the list of effects) and its
+size is within three standard errors or 25 % of the truth; a null draw passes when no effect is
+declared. Effects the device says the recordings cannot identify (their parameterisation returns
+a reason) are not drawn and are listed. One JSON line per draw goes to ``--out`` as it ends; the
+summary printed at the end: pass rates, per effect, false alarms, time per draw.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing as mp
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+RECORDINGS = sorted((REPO / "resources" / "maglev1d").glob("dataset_*.npz"))
+#: effect -> (parameter, lower, upper, signed): the size of a drawn effect, uniform in [lower, upper]
+#: (either sign when signed); a detectable but realistic size for a 100 Hz log of a levitated ball
+SIZES = {
+    "sensor_delay": ("delay_s", 2e-3, 8e-3, False),
+    "actuation_delay": ("delay_s", 2e-3, 8e-3, False),
+    "sensor_gain": ("gain", 0.06, 0.15, True),
+    "sensor_offset": ("offset_m", 3e-4, 1e-3, True),
+    "static_load": ("fy_n", 0.02, 0.05, True),
+    "eddy_current": ("tau_s", 3e-3, 1e-2, False),
+    "saturation": ("coefficient_per_a2", 0.3, 1.0, False),
+    "amplifier_drop": ("drop_v", 0.5, 1.5, False),
+    "current_offset": ("offset_a", 0.01, 0.03, True),
+    "resistance_drift": ("rate_ohm_per_s", 0.005, 0.02, False),
+}
+
+
+def _center(dev, cfg, path: str | None) -> dict:
+    """The rig's centre: parameters calibrated on the real recordings, or the checks' estimate."""
+    if path and Path(path).exists():
+        rep = json.loads(Path(path).read_text())
+        return {k: p["value"] for k, p in rep.get("parameters", {}).items()}
+    arrays, meta = dev.load(next(p for p in RECORDINGS if "escalon" in p.name and "multi" not in p.name))
+    return dev.initial_estimate(dev.record(arrays, meta, cfg, "centre"), cfg)
+
+
+def _rig_config(dev, cfg, center, rng, settings):
+    """A rig's parameters: uniform within one prior sd of the centre, drawn until its loop is stable."""
+    from ssamb.config import apply_overrides, get
+    from ssamb.maglev1d.checks import loop_poles
+
+    pri = dev.priors(cfg)
+    for _ in range(50):
+        ov = {}
+        for key, sd in pri.items():
+            nom = float(get(cfg, key))
+            c = float(center.get(key, nom))
+            u = rng.uniform(-1.0, 1.0)
+            ov[key] = c * (1.0 + u * sd) if nom != 0 else c + u * sd
+        rig = apply_overrides(cfg, ov)
+        if loop_poles(rig, 0.005)["stable"]:
+            return ov, rig
+    raise RuntimeError("no stable rig in 50 draws around the centre")
+
+
+def _effect(name: str, rng) -> dict:
+    p, lo, hi, signed = SIZES[name]
+    v = float(rng.uniform(lo, hi)) * (float(rng.choice([-1.0, 1.0])) if signed else 1.0)
+    if name == "sensor_gain":
+        v = 1.0 + v
+    return {"name": name, p: v}
+
+
+def _found(true: dict, rep: dict) -> list[str]:
+    """Failures of a draw with an effect: not found first, or its size off."""
+    eff = rep["effects"]
+    if not eff:
+        return [f"{true['name']} not found ({rep.get('summary', '')})"]
+    e = eff[0]
+    if e["name"] != true["name"]:
+        return [f"found {e['name']} first, the rig has {true['name']}"]
+    fails = []
+    for k, v in true.items():
+        if k == "name" or k not in e["params"]:
+            continue
+        est, se = float(e["params"][k]), float(e.get("uncertainty", {}).get(k, 0.0))
+        ref = v - 1.0 if k == "gain" else v
+        err = est - v
+        if abs(err) > max(3 * se, 0.25 * abs(ref)):
+            fails.append(f"{k}: {est:.4g} +- {se:.2g} against {v:.4g}")
+    if len(eff) > 1:
+        fails.append(f"spurious effects beside it: {[x['name'] for x in eff[1:]]}")
+    return fails
+
+
+def run_draw(args) -> dict:
+    k, with_effect, seed, center, names = args
+    from ssamb.closeloop import analyse
+    from ssamb.closeloop.settings import settings_from_config
+    from ssamb.device import get_device
+
+    dev = get_device("maglev1d")
+    cfg = dev.default_config()
+    settings = settings_from_config(cfg, dev)
+    from ssamb.io import DataError
+
+    rng = np.random.default_rng([seed, k])
+    true = _effect(names[int(rng.integers(len(names)))], rng) if with_effect else None
+    for attempt in range(20):            # a rig whose ball never levitates makes no data: draw again
+        ov, rig = _rig_config(dev, cfg, center, rng, settings)
+        path = RECORDINGS[int(rng.integers(len(RECORDINGS)))]
+        arrays, meta = dev.load(path)
+        rec = dev.record(arrays, meta, cfg, path.name)
+        out = dev.replay(rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
+        data = {**arrays, **{c: out.channels[c] for c in dev.channels}}
+        try:
+            dev.record(data, meta, cfg, path.name)
+            break
+        except DataError:
+            continue
+    else:
+        return {"draw": k, "effect": true, "failures": ["no rig that levitates in 20 draws"]}
+    t0 = time.perf_counter()
+    try:
+        rep = analyse(data, meta, cfg, device=dev)
+    except Exception as exc:              # a crash is a failure of the draw, reported with the others
+        return {"draw": k, "effect": true, "recording": path.stem, "failures": [f"crash: {type(exc).__name__}: {exc}"]}
+    fails = _found(true, rep) if true else ([f"effects declared: {[e['name'] for e in rep['effects']]}"]
+                                            if rep["effects"] else [])
+    return {"draw": k, "effect": true, "recording": path.stem, "rig": ov, "failures": fails,
+            "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {})}
+                      for e in rep["effects"]],
+            "parameters": {key: [p["value"], p["se"], ov.get(key)] for key, p in rep["parameters"].items()},
+            "simulations": rep["timing"]["simulations"], "seconds": time.perf_counter() - t0}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--draws", type=int, default=24, help="draws with an effect")
+    ap.add_argument("--null", type=int, default=20, help="draws without an effect")
+    ap.add_argument("--seed", type=int, default=20261126)
+    ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--center", default=str(REPO / "results" / "rigs" / "maglev1d" / "closeloop.json"),
+                    help="closeloop.json of the real rig (its parameters are the rigs' centre)")
+    ap.add_argument("--out", default="maglev_suite.jsonl")
+    a = ap.parse_args()
+    from ssamb.closeloop.settings import settings_from_config
+    from ssamb.device import get_device
+
+    dev = get_device("maglev1d")
+    cfg = dev.default_config()
+    settings = settings_from_config(cfg, dev)
+    arrays, meta = dev.load(RECORDINGS[0])
+    rec = dev.record(arrays, meta, cfg, RECORDINGS[0].name)
+    names, unidentifiable = [], {}
+    for n in dev.library:
+        why = dev.effect_model(n, {}, rec, settings)
+        (unidentifiable.__setitem__(n, why) if isinstance(why, str) else names.append(n))
+    names = [n for n in names if n in SIZES]
+    center = _center(dev, cfg, a.center)
+    print(f"effects drawn: {', '.join(names)}", flush=True)
+    for n, why in unidentifiable.items():
+        print(f"not drawn ({n}): {why}", flush=True)
+    jobs = [(k, True, a.seed, center, names) for k in range(a.draws)]
+    jobs += [(a.draws + k, False, a.seed, center, names) for k in range(a.null)]
+    t0 = time.perf_counter()
+    res = []
+    with mp.get_context("fork").Pool(a.processes) as pool, open(a.out, "a") as fh:
+        for d in pool.imap_unordered(run_draw, jobs):
+            res.append(d)
+            fh.write(json.dumps(d, default=float) + "\n")
+            fh.flush()
+            print(f"draw {d['draw']:3d} {d['effect']['name'] if d['effect'] else 'none':18s} "
+                  f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}", flush=True)
+    eff = [d for d in res if d["effect"]]
+    null = [d for d in res if not d["effect"]]
+    ok = sum(not d["failures"] for d in eff)
+    print(f"\nwith an effect: {ok} of {len(eff)} pass ({100 * ok / max(len(eff), 1):.0f} %)")
+    for n in names:
+        sel = [d for d in eff if d["effect"]["name"] == n]
+        if sel:
+            print(f"  {n}: {sum(not d['failures'] for d in sel)} of {len(sel)}")
+    print(f"noise only: {sum(bool(d['failures']) for d in null)} of {len(null)} declared an effect")
+    secs = [d.get("seconds", math.nan) for d in res]
+    print(f"wall {time.perf_counter() - t0:.0f} s on {a.processes} processes; median {np.nanmedian(secs):.0f} s per "
+          f"analysis; load average {os.getloadavg()[0]:.1f}")
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    main()
