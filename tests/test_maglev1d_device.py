@@ -128,6 +128,14 @@ def test_validate_accepts_levitation_and_rejects_a_ball_that_never_floats():
         DEV.validate(_levitating_arrays(scale=1000.0), "mm.csv")
 
 
+def test_record_rejects_a_ball_that_never_follows_its_reference():
+    a = _levitating_arrays()
+    a["yd"][:] = 0.012                                # 7 mm away the whole time
+    DEV.validate(a, "far.csv")
+    with pytest.raises(DataError, match=r"far.csv: column 'y': the ball levitates but never stays"):
+        DEV.record(a, {}, CFG, "far.csv")
+
+
 def test_notes_flag_units():
     a = _levitating_arrays()
     a["i"] = a["i"] * 1000

@@ -121,20 +121,31 @@ class Maglev1D(Device):
         return levitated_stretches(m, int(round(lev["min_duration_s"] / cfg["controller"]["ts_s"])))
 
     def usable_parts(self, arrays: Mapping, cfg: Mapping, stretches) -> tuple:
-        """The compared part of each levitated stretch: from ``levitation.settle_s`` after the
-        controller has caught the ball (its first sample within ``levitation.capture_m`` of the
-        reference) to the stretch's end. The lift-off or recovery before it crosses the large
-        gaps, where a force law fitted near the operating point is least trusted, in a transient
-        no replay starts from a known state."""
+        """The compared parts of the levitated stretches: each from ``levitation.settle_s`` after
+        the controller has caught the ball (its first sample within ``levitation.capture_m`` of
+        the reference) until the ball escapes it (more than ``levitation.lost_m`` from the
+        reference: the demand's proportional part alone then drives the current to its limit),
+        at least ``levitation.min_usable_s`` long; a stretch can hold several. Left out: the lift-off
+        or recovery through the large gaps, and an escape, threshold events whose timing no
+        replay reproduces from a known state."""
         ts = float(cfg["controller"]["ts_s"])
         lev = cfg["levitation"]
         settle = int(round(lev["settle_s"] / ts))
-        near = np.abs(np.asarray(arrays["y"], float) - np.asarray(arrays["yd"], float)) <= lev["capture_m"]
+        shortest = int(round(lev["min_usable_s"] / ts))
+        dev = np.abs(np.asarray(arrays["y"], float) - np.asarray(arrays["yd"], float))
         out = []
         for a, b in stretches:
-            hit = np.nonzero(near[a:b])[0]
-            if len(hit) and a + hit[0] + settle < b:
-                out.append((int(a + hit[0] + settle), int(b)))
+            k = a
+            while k < b:
+                hit = np.nonzero(dev[k:b] <= lev["capture_m"])[0]
+                if not len(hit):
+                    break
+                s0 = k + int(hit[0]) + settle
+                lost = np.nonzero(dev[s0:b] > lev["lost_m"])[0] if s0 < b else np.array([], int)
+                e = s0 + int(lost[0]) if len(lost) else b
+                if e - s0 >= shortest:
+                    out.append((int(s0), int(e)))
+                k = max(e, k + 1)
         return tuple(out)
 
     def notes(self, arrays: Mapping, meta: Mapping, cfg: Mapping) -> list[str]:
@@ -168,6 +179,11 @@ class Maglev1D(Device):
         if not stretches:
             raise DataError(f"{source}: column 'y': the ball never levitates")
         usable = self.usable_parts(arr, cfg, stretches)
+        if not usable:
+            lev = cfg["levitation"]
+            raise DataError(f"{source}: column 'y': the ball levitates but never stays within {1e3 * lev['lost_m']:g} mm "
+                            f"of the reference 'yd' for {lev['settle_s'] + lev['min_usable_s']:g} s after coming within "
+                            f"{1e3 * lev['capture_m']:g} mm of it: nothing to compare")
         qy, qi = _ctl.position_lsb_m(cfg), _ctl.current_lsb_a(cfg)
         # the controller's state before every sample, from the log itself (it saw whole counts)
         _, states = _ctl.run(qy * np.round(arr["y"] / qy), qi * np.round(arr["i"] / qi), arr["yd"], _ctl.gains_of(cfg))
@@ -183,8 +199,9 @@ class Maglev1D(Device):
                   f"{1e3 * cfg['levitation']['margin_m']:g} mm, coil current >= {cfg['levitation']['min_current_a']:g} A, "
                   f"for >= {cfg['levitation']['min_duration_s']:g} s) are compared, from "
                   f"{cfg['levitation']['settle_s']:g} s after the ball first comes within "
-                  f"{1e3 * cfg['levitation']['capture_m']:g} mm of the reference; the ball held, on a stop, lifting "
-                  f"off or falling is not replayed") if left else ""
+                  f"{1e3 * cfg['levitation']['capture_m']:g} mm of the reference until it strays "
+                  f"{1e3 * cfg['levitation']['lost_m']:g} mm from it; the ball held, on a stop, lifting off or "
+                  f"falling is not replayed") if left else ""
         m = dict(meta)
         b, mg = cfg["ball"], cfg["magnet"]
         gain = cfg["amplifier"]["v_max_v"] / cfg["controller"]["v_ref_v"]
@@ -250,6 +267,36 @@ class Maglev1D(Device):
             if a < n and np.any(out["contact"][a:min(b, n)]):
                 contact = True
         return Replay(channels=ch, contact=contact)
+
+    def simulate_log(self, cfg: Mapping, yd, effects: list | None = None, seed: int | None = None) -> dict:
+        """A synthetic rig log (optional, beyond :class:`ssamb.device.Device`): arrays ``t, y, i, u, yd``
+        of the model with ``effects`` driven by the reference ``yd`` (100 Hz samples), the ball
+        released at rest at the reference's first value with the equilibrium current and the
+        controller's integrators at their equilibrium (:func:`ssamb.maglev1d.physics.equilibrium`).
+        For the randomized suite and tests: a rig whose truth is known."""
+        yd = np.asarray(yd, float)
+        kn = self.knobs(cfg, effects or [])
+        p = _phys.knobs_of(cfg, kn)
+        y0, i0, u0 = _phys.equilibrium(p, float(yd[0]))
+        init = np.array([[y0, 0.0, i0, 0.0, -(i0 + kn["current_offset_a"]), u0, u0]])
+        n = len(yd)
+        noise = None if seed is None else np.ascontiguousarray(np.random.default_rng(seed).standard_normal((n, 3)).T)
+        out = _phys.simulate(p, _ctl.gains_of(cfg), yd, [(0, n)], init, noise)
+        return {"t": np.arange(n) * float(cfg["controller"]["ts_s"]), "y": out["y"], "i": out["i"], "u": out["u"],
+                "yd": yd.copy()}
+
+    def stable_at(self, cfg: Mapping, levels_m, effects: list | None = None) -> dict:
+        """The linearised sampled loop at reference readings ``levels_m`` (optional, beyond
+        :class:`ssamb.device.Device`; :func:`ssamb.maglev1d.checks.loop_poles`, with the sensor's
+        scale and zero and a static load): ``{level: check}``. A rig drawn for a test whose loop is
+        unstable at its reference cannot levitate there."""
+        from .checks import loop_poles
+
+        kn = self.knobs(cfg, effects or [])
+        gs = kn["sensor_gain"] * cfg["sensors"]["position_gain"]
+        o = kn["sensor_offset_m"] + cfg["sensors"]["position_offset_m"]
+        return {float(lv): loop_poles(cfg, (float(lv) - o) / gs, {"sensor_gain": gs, "extra_force_n": kn["extra_force_n"]})
+                for lv in levels_m}
 
     def measured_contact(self, record: Record, cfg: Mapping, settings) -> bool:
         """Whether the measured ball comes within a count of a stop in the usable part."""

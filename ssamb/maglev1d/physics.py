@@ -26,8 +26,10 @@ resistance :math:`R` = coil + current-sense shunt, voltage :math:`v` from the PW
 .. math:: \frac{d\lambda}{dt} = v - R\,i, \qquad
           i = i_m + \frac{\tau_e}{L}\frac{d\lambda}{dt}
 
-so that :math:`L\,\dot i_m = L\frac{v - R i_m}{L + R\tau_e} - i_m \frac{dL}{dy}\dot y`: the motion
-term :math:`i\, \dot y\, dL/dy` (back-EMF of the moving ball) is included; :math:`\tau_e = 0`
+so that :math:`L\,\dot i_m = L\frac{v - R i_m}{L + R\tau_e} - (i_m + i_r) \frac{dL}{dy}\dot y`: the
+motion term (back-EMF of the moving ball) is included, with the core's remanent magnetisation
+:math:`i_r` (an equivalent current, zero nominally: the ``remanence`` effect) in the flux and the
+force, :math:`F = \tfrac12 (i_m + i_r)^2 |dL/dy|`; :math:`\tau_e = 0`
 nominally (the eddy-current effect sets it: a core-loss branch in parallel with :math:`L`, the
 force-producing current :math:`i_m` lagging the terminal current). The current cannot reverse
 (the stage's freewheeling diode): :math:`i_m \ge 0`.
@@ -65,7 +67,7 @@ import numpy as np
 from .controller import step as controller_step
 
 __all__ = ["KNOBS", "knob_index", "neutral_knobs", "inductance_h", "force_n", "equilibrium_current_a",
-           "simulate"]
+           "equilibrium", "simulate", "knobs_of"]
 
 #: the kernel's parameter vector: physical parameters, noise levels, effect knobs (neutral values
 #: in :func:`neutral_knobs`); effects set theirs through :mod:`ssamb.maglev1d.effects`
@@ -78,11 +80,11 @@ KNOBS = (
     "noise_position_m", "noise_current_a", "noise_force_n",
     # effects
     "sensor_delay_s", "actuation_delay_s", "sensor_gain", "sensor_offset_m", "extra_force_n", "eddy_tau_s",
-    "saturation_per_a2", "drop_v", "r_rate_ohm_per_s", "current_offset_a",
+    "saturation_per_a2", "drop_v", "r_rate_ohm_per_s", "current_offset_a", "remanence_a",
 )
 _I = {n: j for j, n in enumerate(KNOBS)}
 (M, G, K0, K, A, R, VMAX, VREF, NPWM, QY, NY, QI, NI, YTOP, YBOT, REST, NSUB, SY, SI, SF, DY, DU, GY, OY,
- FEXT, TAUE, CSAT, VDROP, RRATE, IOFF) = range(len(KNOBS))
+ FEXT, TAUE, CSAT, VDROP, RRATE, IOFF, IREM) = range(len(KNOBS))
 
 
 def knob_index(name: str) -> int:
@@ -93,7 +95,7 @@ def neutral_knobs() -> dict:
     """Effect knobs at 'no effect'."""
     return {"sensor_delay_s": 0.0, "actuation_delay_s": 0.0, "sensor_gain": 1.0, "sensor_offset_m": 0.0,
             "extra_force_n": 0.0, "eddy_tau_s": 0.0, "saturation_per_a2": 0.0, "drop_v": 0.0,
-            "r_rate_ohm_per_s": 0.0, "current_offset_a": 0.0}
+            "r_rate_ohm_per_s": 0.0, "current_offset_a": 0.0, "remanence_a": 0.0}
 
 
 # -- the force law ----------------------------------------------------------------------------
@@ -113,6 +115,19 @@ def equilibrium_current_a(y, mass_kg, g, k_h, a_m, extra_force_n=0.0):
     return (1.0 + np.asarray(y, float) / a_m) * np.sqrt(2.0 * a_m * (mass_kg * g + extra_force_n) / k_h)
 
 
+def equilibrium(p: np.ndarray, reading_m: float) -> tuple[float, float, float]:
+    r"""The ball at rest where the sensor reads ``reading_m``: true position (the sensor model's
+    inverse), the terminal current that holds it (force law with saturation and the extra force:
+    :math:`i^2/(1 + c i^2) = i_{law}^2`), and the command that drives it
+    (:math:`u = V_{ref} (R i + V_d)/V_{max}`, the PWM's truncation aside)."""
+    y = (reading_m - p[OY]) / p[GY]
+    i_law = float(equilibrium_current_a(y, p[M], p[G], p[K], p[A], p[FEXT]))
+    den = 1.0 - p[CSAT] * i_law ** 2
+    i = (i_law / math.sqrt(den) if den > 0 else i_law) - p[IREM]
+    u = p[VREF] * (p[R] * i + p[VDROP]) / p[VMAX]
+    return float(y), float(i), float(u)
+
+
 # -- the kernel -------------------------------------------------------------------------------
 @numba.njit(cache=True)
 def _deriv(p, y, vel, im, v, r, f, mode):
@@ -120,7 +135,8 @@ def _deriv(p, y, vel, im, v, r, f, mode):
     s = 1.0 + y / a
     ind = p[K0] + p[K] / s
     dind = -p[K] / (a * s * s)
-    force = 0.5 * im * im * (-dind) / (1.0 + p[CSAT] * im * im)
+    i_f = im + p[IREM]
+    force = 0.5 * i_f * i_f * (-dind) / (1.0 + p[CSAT] * i_f * i_f)
     if mode == 0:
         dy = vel
         dv = p[G] + (f - force) / p[M]
@@ -128,7 +144,7 @@ def _deriv(p, y, vel, im, v, r, f, mode):
         dy = 0.0
         dv = 0.0
     tau = p[TAUE]
-    dim = (v - r * im) / (ind + r * tau) - im * dind * dy / ind
+    dim = (v - r * im) / (ind + r * tau) - i_f * dind * dy / ind
     return dy, dv, dim
 
 
@@ -136,7 +152,8 @@ def _deriv(p, y, vel, im, v, r, f, mode):
 def _net_accel(p, y, im, f):
     a = p[A]
     s = 1.0 + y / a
-    force = 0.5 * im * im * p[K] / (a * s * s) / (1.0 + p[CSAT] * im * im)
+    i_f = im + p[IREM]
+    force = 0.5 * i_f * i_f * p[K] / (a * s * s) / (1.0 + p[CSAT] * i_f * i_f)
     return p[G] + (f - force) / p[M]
 
 

@@ -19,6 +19,7 @@ saturation           coefficient_per_a2           the force grows slower than i^
 amplifier_drop       drop_v                       the PWM stage's switch and diode drops
 current_offset       offset_a                     the current reading's offset
 resistance_drift     rate_ohm_per_s               the coil's resistance grows as it warms
+remanence            mmf_a                        the core's remanent magnetisation, an MMF beside the coil's
 ==================== ============================ ==================================================
 
 The views the evidence reads: offsets of ``y``, ``i``, ``u`` (force-like effects shift ``i``
@@ -27,12 +28,12 @@ integral action holds ``y``), the measured/model ratios of the paths ``y/i`` (th
 the position sensor) and ``i/u`` (the coil and the stage), and the window means of ``u`` and
 ``i`` (slow drifts).
 """
-from . import (actuation_delay, amplifier_drop, current_offset, eddy_current, resistance_drift, saturation,
-               sensor_delay, sensor_gain, sensor_offset, static_load)
+from . import (actuation_delay, amplifier_drop, current_offset, eddy_current, remanence, resistance_drift,
+               saturation, sensor_delay, sensor_gain, sensor_offset, static_load)
 from ._common import EffectError
 
 __all__ = ["MODULES", "EffectError"]
 
 #: the effect modules, in the order close the loop ranks ties
 MODULES = (sensor_delay, actuation_delay, sensor_gain, sensor_offset, static_load, eddy_current, saturation,
-           amplifier_drop, current_offset, resistance_drift)
+           amplifier_drop, current_offset, resistance_drift, remanence)

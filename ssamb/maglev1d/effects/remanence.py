@@ -1,0 +1,54 @@
+r"""``remanence``: the core keeps part of its magnetisation.
+
+Physics: a soft-iron core pulled to saturation and closed by the ball (the ball stuck to the
+magnet) keeps a remanent magnetisation, an MMF acting like a current :math:`i_r` in the coil:
+:math:`F = \tfrac12 (i + i_r)^2 |dL/dy|`, and its flux linkage moves with the gap (knob
+``remanence_a``; equivalent currents add). It is what holds a ball to the face with no current
+and lets it go slowly.
+
+Signature: the coil needs :math:`i_r` less current to hold the ball (at every level), so the
+current and the command shift down together; the position is held; the force's gain
+:math:`\partial F/\partial i = 2mg/(i + i_r)` drops with it (a flat gain below 1 of ``y/i``).
+Evidence: negative offsets of ``i`` and ``u``, none of ``y``.
+
+Fit: :math:`i_r`, started at minus the offset of ``i``.
+"""
+from __future__ import annotations
+
+from ._common import entries, number, offset_claim, offset_evidence, scalar_model
+
+NAME = "remanence"
+REQUIRED = ("mmf_a",)
+OPTIONAL = ()
+SIGNATURE = "negative offsets of the coil current and the command, constant over levels, none of the position"
+SEARCHABLE = True
+NEEDS_HINT = False
+KNOB = "remanence_a"
+
+
+def validate(p: dict, where: str) -> dict:
+    return {"mmf_a": number(p, "mmf_a", where, -1.0, 1.0)}
+
+
+def apply(kn: dict, e: dict, cfg) -> None:
+    kn[KNOB] += float(e["mmf_a"])
+
+
+def evidence(ft, alpha: float, st) -> dict:
+    ev = offset_evidence(ft, alpha, ("i", "u"), ("y",))
+    if ev["details"]["i"]["mean"] >= 0:
+        ev.update(score=0.0, significant=False)
+    ev["hints"]["offset_i_a"] = ev["details"]["i"]["mean"]
+    return ev
+
+
+def claim(ft, hints: dict, df_hz: float, st) -> float:
+    return offset_claim(ft, ("i", "u"))
+
+
+def model(hints: dict, record, st):
+    return scalar_model(NAME, "mmf_a", -hints.get("offset_i_a", 0.0), 0.01, -0.3, 0.5)
+
+
+def report(m, theta, se, significant) -> list[dict]:
+    return entries(m, theta, se)
