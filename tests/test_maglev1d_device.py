@@ -153,3 +153,20 @@ def test_cli_style_csv_end_to_end(tmp_path):
     DEV.validate(a2, str(p))
     rec = DEV.record(a2, m2, CFG, str(p))
     assert rec.usable == _record("constante").usable
+
+
+def test_checks_published_against_start():
+    arrays, _ = DEV.load(DATA["escalon"])
+    pub = DEV.checks(arrays, CFG)
+    assert pub["command_per_current"]["measured_ohm"] > 1.5 * pub["command_per_current"]["model_ohm"]
+    assert not pub["linearised_loop"]["model_stable"]
+    import copy
+
+    cfg = copy.deepcopy(CFG)
+    for k, v in DEV.initial_estimate(_record("escalon"), CFG).items():
+        sec, key = k.split(".")
+        cfg[sec][key] = v
+    st = DEV.checks(arrays, cfg)
+    assert st["linearised_loop"]["model_stable"]
+    assert st["command_per_current"]["measured_ohm"] == pytest.approx(st["command_per_current"]["model_ohm"], rel=1e-6)
+    assert abs(st["equilibrium_current"]["measured_a"] / st["equilibrium_current"]["model_a"] - 1) < 0.03

@@ -94,6 +94,45 @@ class Maglev1D(Device):
             out[key] = float(np.clip(val, nom - span, nom + span))
         return out
 
+    def checks(self, arrays: Mapping, cfg: Mapping) -> dict:
+        """Physical checks of the model with ``cfg`` against one recording (:mod:`.checks`): the
+        coil's time constant, the command's incremental resistance and offset (from the current's
+        response to the command), the equilibrium current on settled plateaus against the force
+        law, and the linearised loop at the reference's levels (the rig levitates there)."""
+        from . import checks as _chk
+
+        from .physics import equilibrium_current_a, inductance_h
+
+        c = _chk.coil_time_constant(arrays, cfg)
+        gs, o = cfg["sensors"]["position_gain"], cfg["sensors"]["position_offset_m"]
+        b, mg = cfg["ball"], cfg["magnet"]
+        tau_model = float(inductance_h((c["y_mean_m"] - o) / gs, mg["k0_h"], mg["k_h"], mg["a_m"])) / (
+            cfg["coil"]["r_ohm"] + cfg["coil"]["r_shunt_ohm"])
+        out = {"coil_time_constant": {"measured_s": c["tau_s"], "model_s": tau_model, "samples": c["samples"],
+                                      "y_mean_m": c["y_mean_m"]},
+               "command_per_current": {"measured_ohm": c["r_over_gain_ohm"],
+                                       "model_ohm": (cfg["coil"]["r_ohm"] + cfg["coil"]["r_shunt_ohm"])
+                                       * cfg["controller"]["v_ref_v"] / cfg["amplifier"]["v_max_v"]},
+               "command_offset": {"measured_v": c["offset_v"],
+                                  "model_v": cfg["amplifier"]["drop_v"] * cfg["controller"]["v_ref_v"]
+                                  / cfg["amplifier"]["v_max_v"]}}
+        e = _chk.equilibrium_currents(arrays, cfg)
+        if e["plateaus"]:
+            ym = (np.array(e["y_m"]) - o) / gs
+            pred = equilibrium_current_a(ym, b["mass_kg"], b["gravity_m_per_s2"], mg["k_h"], mg["a_m"])
+            out["equilibrium_current"] = {"plateaus": e["plateaus"], "measured_a": float(np.mean(e["i_a"])),
+                                          "model_a": float(np.mean(pred)),
+                                          "ratio_min": float(np.min(np.array(e["i_a"]) / pred)),
+                                          "ratio_max": float(np.max(np.array(e["i_a"]) / pred))}
+        levels = np.unique(np.round(np.asarray(arrays["yd"], float), 5))
+        levels = levels if len(levels) <= 5 else np.quantile(np.asarray(arrays["yd"], float), [0.1, 0.5, 0.9])
+        st = self.stable_at(cfg, levels)
+        out["linearised_loop"] = {"levels_m": [float(v) for v in st],
+                                  "spectral_radius": [r["spectral_radius"] for r in st.values()],
+                                  "least_damping": [r["least_damping"] for r in st.values()],
+                                  "model_stable": all(r["stable"] for r in st.values()), "rig_levitates": True}
+        return out
+
     # -- data
     def load(self, path) -> tuple[dict, dict]:
         return load_data(path)
