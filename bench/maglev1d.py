@@ -154,11 +154,10 @@ def main() -> None:
     print("\n== 3. linearised sampled loop (spectral radius; least damped oscillation)")
     starts = {n: dev.initial_estimate(r, cfg) for n, r in recs.items()}
     for lab, c in [("published", cfg), ("start(escalon)", with_overrides(cfg, starts["escalon"]))]:
-        kn = {}
         gs, os_ = c["sensors"]["position_gain"], c["sensors"]["position_offset_m"]
         parts = []
         for yr in (0.004, 0.005, 0.006):
-            r = checks.loop_poles(c, (yr - os_) / gs, {"sensor_gain": gs, **kn})
+            r = checks.loop_poles(c, (yr - os_) / gs, {"sensor_gain": gs})
             parts.append(f"{yr * 1e3:.0f} mm: radius {r['spectral_radius']:.3f}, zeta {r['least_damping']:.3f} "
                          f"at {r['least_damped_hz']:.1f} Hz, {'stable' if r['stable'] else 'UNSTABLE'}")
         print(f"{lab:15s} " + "; ".join(parts))

@@ -181,20 +181,14 @@ def _rk4(p, st, v, r, f, h):
         im = 0.0                        # the freewheeling diode blocks a reverse current
     touched = 0
     if mode == 0:
-        if y <= p[YTOP]:
-            y = p[YTOP]
-            vel = -p[REST] * vel
+        stop = 1 if y <= p[YTOP] else (2 if y >= p[YBOT] else 0)
+        if stop:
+            y = p[YTOP] if stop == 1 else p[YBOT]
+            vel = -p[REST] * vel        # the rebound; it rests when the rebound is below 10 mm/s
             touched = 1
             if abs(vel) < 0.01:
                 vel = 0.0
-                mode = 1
-        elif y >= p[YBOT]:
-            y = p[YBOT]
-            vel = -p[REST] * vel
-            touched = 1
-            if abs(vel) < 0.01:
-                vel = 0.0
-                mode = 2
+                mode = stop
     else:
         touched = 1
         acc = _net_accel(p, y, im, f)

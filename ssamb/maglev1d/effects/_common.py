@@ -10,7 +10,8 @@ import numpy as np
 from ...device import EffectModel, log10_p_two_sided, log10_p_upper
 from ...errors import InputError
 
-__all__ = ["EffectError", "number", "offset_evidence", "ratio_evidence", "entries", "scalar_model", "TS_S"]
+__all__ = ["EffectError", "number", "offset_evidence", "ratio_evidence", "force_like_evidence", "force_like_claim",
+           "delay_evidence", "delay_model", "entries", "scalar_model", "TS_S"]
 
 #: the controller's period: delays are fractions of a sample
 TS_S = 0.01
@@ -76,6 +77,33 @@ def ratio_evidence(ft, alpha: float, path: str, kind: str, sign: int = 0) -> dic
     det = {"path": path, "z": z, "tau_s": float(r["tau_s"]), "se_tau_s": float(r["se_tau_s"]),
            "gain": float(r["gain"]), "se_log_gain": float(r["se_alpha"]), "lines": int(r["n_lines"])}
     return {"score": chi if sig else 0.0, "log10_p": float(lp), "significant": bool(sig), "hints": {}, "details": det}
+
+
+def force_like_evidence(ft, alpha: float, sign: int = 0) -> dict:
+    """Evidence of an effect that changes the force balance: offsets of ``i`` and ``u`` of one
+    sign (``sign`` +1/-1: only that one), none of ``y``; the offset of ``i`` as a hint."""
+    ev = offset_evidence(ft, alpha, ("i", "u"), ("y",))
+    if sign and sign * ev["details"]["i"]["mean"] <= 0:
+        ev.update(score=0.0, significant=False)
+    ev["hints"]["offset_i_a"] = ev["details"]["i"]["mean"]
+    return ev
+
+
+def force_like_claim(ft, hints: dict, df_hz: float, st) -> float:
+    return offset_claim(ft, ("i", "u"))
+
+
+def delay_evidence(ft, alpha: float, path: str) -> dict:
+    """Evidence of a delay on ``path`` (one-sided lag), its slope as the hint ``delay_s``."""
+    ev = ratio_evidence(ft, alpha, path, "tau", +1)
+    if ev["significant"]:
+        ev["hints"]["delay_s"] = ev["details"]["tau_s"]
+    return ev
+
+
+def delay_model(name: str, hints: dict):
+    """A delay of less than a sample, started at the hint or a coarse grid."""
+    return scalar_model(name, "delay_s", hints.get("delay_s", 0.0), 1e-3, 0.0, 0.99 * TS_S, grid=(2e-3, 5e-3))
 
 
 def ratio_claim(ft, path: str, kind: str) -> float:

@@ -13,7 +13,7 @@ Fit: :math:`\tau`, started at the path's slope (or a coarse grid).
 """
 from __future__ import annotations
 
-from ._common import TS_S, entries, number, ratio_claim, ratio_evidence, scalar_model
+from ._common import TS_S, delay_evidence, delay_model, entries, number, ratio_claim
 
 NAME = "actuation_delay"
 REQUIRED = ("delay_s",)
@@ -33,10 +33,7 @@ def apply(kn: dict, e: dict, cfg) -> None:
 
 
 def evidence(ft, alpha: float, st) -> dict:
-    ev = ratio_evidence(ft, alpha, "i/u", "tau", +1)
-    if ev["significant"]:
-        ev["hints"]["delay_s"] = ev["details"]["tau_s"]
-    return ev
+    return delay_evidence(ft, alpha, "i/u")
 
 
 def claim(ft, hints: dict, df_hz: float, st) -> float:
@@ -44,7 +41,7 @@ def claim(ft, hints: dict, df_hz: float, st) -> float:
 
 
 def model(hints: dict, record, st):
-    return scalar_model(NAME, "delay_s", hints.get("delay_s", 0.0), 1e-3, 0.0, 0.99 * TS_S, grid=(2e-3, 5e-3))
+    return delay_model(NAME, hints)
 
 
 def report(m, theta, se, significant) -> list[dict]:

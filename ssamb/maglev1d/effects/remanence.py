@@ -15,7 +15,7 @@ Fit: :math:`i_r`, started at minus the offset of ``i``.
 """
 from __future__ import annotations
 
-from ._common import entries, number, offset_claim, offset_evidence, scalar_model
+from ._common import entries, force_like_claim, force_like_evidence, number, scalar_model
 
 NAME = "remanence"
 REQUIRED = ("mmf_a",)
@@ -35,15 +35,10 @@ def apply(kn: dict, e: dict, cfg) -> None:
 
 
 def evidence(ft, alpha: float, st) -> dict:
-    ev = offset_evidence(ft, alpha, ("i", "u"), ("y",))
-    if ev["details"]["i"]["mean"] >= 0:
-        ev.update(score=0.0, significant=False)
-    ev["hints"]["offset_i_a"] = ev["details"]["i"]["mean"]
-    return ev
+    return force_like_evidence(ft, alpha, -1)
 
 
-def claim(ft, hints: dict, df_hz: float, st) -> float:
-    return offset_claim(ft, ("i", "u"))
+claim = force_like_claim
 
 
 def model(hints: dict, record, st):

@@ -12,7 +12,7 @@ Fit: :math:`c \ge 0`, started at :math:`2\Delta i/i_0^3`.
 """
 from __future__ import annotations
 
-from ._common import entries, number, offset_claim, offset_evidence, operating_point, scalar_model
+from ._common import entries, force_like_claim, force_like_evidence, number, operating_point, scalar_model
 
 NAME = "saturation"
 REQUIRED = ("coefficient_per_a2",)
@@ -32,15 +32,10 @@ def apply(kn: dict, e: dict, cfg) -> None:
 
 
 def evidence(ft, alpha: float, st) -> dict:
-    ev = offset_evidence(ft, alpha, ("i", "u"), ("y",))
-    if ev["details"]["i"]["mean"] <= 0:
-        ev.update(score=0.0, significant=False)
-    ev["hints"]["offset_i_a"] = ev["details"]["i"]["mean"]
-    return ev
+    return force_like_evidence(ft, alpha, 1)
 
 
-def claim(ft, hints: dict, df_hz: float, st) -> float:
-    return offset_claim(ft, ("i", "u"))
+claim = force_like_claim
 
 
 def model(hints: dict, record, st):

@@ -14,7 +14,7 @@ Fit: :math:`\tau`, started at the path's slope (or a coarse grid).
 """
 from __future__ import annotations
 
-from ._common import TS_S, number, ratio_claim, ratio_evidence, scalar_model, entries
+from ._common import TS_S, delay_evidence, delay_model, entries, number, ratio_claim, ratio_evidence
 
 NAME = "sensor_delay"
 REQUIRED = ("delay_s",)
@@ -34,13 +34,12 @@ def apply(kn: dict, e: dict, cfg) -> None:
 
 
 def evidence(ft, alpha: float, st) -> dict:
-    ev = ratio_evidence(ft, alpha, "y/i", "tau", +1)
+    ev = delay_evidence(ft, alpha, "y/i")
     lead = ratio_evidence(ft, alpha, "i/u", "tau", -1)
     if lead["significant"]:                 # the current leads the command: the force lags (eddy_current)
         ev.update(score=0.0, significant=False)
         ev["details"]["i/u"] = lead["details"]
-    if ev["significant"]:
-        ev["hints"]["delay_s"] = ev["details"]["tau_s"]
+        ev["hints"].pop("delay_s", None)
     return ev
 
 
@@ -49,7 +48,7 @@ def claim(ft, hints: dict, df_hz: float, st) -> float:
 
 
 def model(hints: dict, record, st):
-    return scalar_model(NAME, "delay_s", hints.get("delay_s", 0.0), 1e-3, 0.0, 0.99 * TS_S, grid=(2e-3, 5e-3))
+    return delay_model(NAME, hints)
 
 
 def report(m, theta, se, significant) -> list[dict]:

@@ -13,7 +13,7 @@ Fit: :math:`o`, started at :math:`-\Delta i\,(a + y_0)/i_0`.
 """
 from __future__ import annotations
 
-from ._common import entries, number, offset_claim, offset_evidence, operating_point, scalar_model
+from ._common import entries, force_like_claim, force_like_evidence, number, operating_point, scalar_model
 
 NAME = "sensor_offset"
 REQUIRED = ("offset_m",)
@@ -35,13 +35,10 @@ def apply(kn: dict, e: dict, cfg) -> None:
 
 
 def evidence(ft, alpha: float, st) -> dict:
-    ev = offset_evidence(ft, alpha, ("i", "u"), ("y",))
-    ev["hints"]["offset_i_a"] = ev["details"]["i"]["mean"]
-    return ev
+    return force_like_evidence(ft, alpha, 0)
 
 
-def claim(ft, hints: dict, df_hz: float, st) -> float:
-    return offset_claim(ft, ("i", "u"))
+claim = force_like_claim
 
 
 def model(hints: dict, record, st):
