@@ -22,8 +22,8 @@ only through a :class:`Device`:
 * **features**: which paths, axes and lines the residual analysis reads for that device
   (:class:`FeatureSpec`).
 
-Adding an effect to a device touches that effect's module (and its registration in the device's
-effect package) and a test; the engine is untouched. Adding a device means a new :class:`Device`
+Adding an effect to a device is adding its module to the device's effect package (and a test);
+nothing else changes. Adding a device means a new :class:`Device`
 subclass registered in :data:`DEVICES`.
 
 Devices live in their own packages (the AMB: :mod:`ssamb.sim`; the 1-DOF levitated ball:
@@ -40,7 +40,7 @@ from typing import Callable, Mapping, Protocol
 import numpy as np
 
 __all__ = ["Record", "Replay", "EffectModel", "EffectModule", "FeatureSpec", "Device", "DEVICES",
-           "get_device", "device_names", "log10_p_two_sided", "log10_p_upper"]
+           "get_device", "device_names", "effect_modules", "log10_p_two_sided", "log10_p_upper"]
 
 
 # -- the data ---------------------------------------------------------------------------------
@@ -173,6 +173,9 @@ class EffectModule(Protocol):
     NEEDS_HINT : bool
         Whether a fit needs a hint from its signature (e.g. a line's frequency): such an effect
         is not fitted blind when no signature is significant.
+    ORDER : int, optional
+        The effect's place in the library (ties of the evidence are broken in this order; 100
+        when absent, then by name).
     """
 
     NAME: str
@@ -181,6 +184,7 @@ class EffectModule(Protocol):
     SIGNATURE: str
     SEARCHABLE: bool
     NEEDS_HINT: bool
+    ORDER: int
 
     def validate(self, params: dict, where: str) -> dict:
         """Check the parameters (types done by the device); return them normalised."""
@@ -275,7 +279,7 @@ class Device:
         ``name -> channels`` whose held-out errors are also reported pooled (``currents``).
     features : FeatureSpec
     effects_package : str
-        Dotted name of the package whose ``MODULES`` lists the effect modules.
+        Dotted name of the package that holds the effect modules, one per effect.
     """
 
     name: str = ""
@@ -290,9 +294,9 @@ class Device:
     # -- effects
     @property
     def effects(self) -> dict:
-        """``name -> effect module`` (:class:`EffectModule`)."""
-        pkg = importlib.import_module(self.effects_package)
-        return {m.NAME: m for m in pkg.MODULES}
+        """``name -> effect module`` (:class:`EffectModule`): every module of
+        :attr:`effects_package` (:func:`effect_modules`)."""
+        return {m.NAME: m for m in effect_modules(self.effects_package)}
 
     @property
     def library(self) -> tuple:
@@ -394,6 +398,18 @@ class Device:
                 raise InputError(f"{where} '{name}': unknown parameter '{k}' "
                                  f"(allowed: {', '.join(mod.REQUIRED + mod.OPTIONAL)})")
         return {"name": name, **mod.validate(flat, f"{where} '{name}'")}
+
+
+def effect_modules(package: str) -> list:
+    """The effect modules of a device's effect package: every module in it whose name does not
+    start with an underscore, ordered by their ``ORDER`` (100 when absent) and name. Adding an
+    effect to a device is adding a module there."""
+    import pkgutil
+
+    pkg = importlib.import_module(package)
+    mods = [importlib.import_module(f"{package}.{m.name}") for m in pkgutil.iter_modules(pkg.__path__)
+            if not m.name.startswith("_")]
+    return sorted(mods, key=lambda m: (getattr(m, "ORDER", 100), m.NAME))
 
 
 #: registered devices: name -> "module:Class"

@@ -122,3 +122,18 @@ def test_validate_effect_through_the_device():
         d.validate_effect({"name": "static_load", "fx_n": 1.0})
     with pytest.raises(InputError, match="'gravity_wave': unknown"):
         d.validate_effect({"name": "gravity_wave"})
+
+
+def test_an_effect_is_a_module_of_the_device_package(tmp_path, monkeypatch):
+    """A module dropped into a device's effect package is in its library, in ``ORDER`` then by
+    name; a module whose name starts with an underscore is a helper, not an effect."""
+    from ssamb.device import effect_modules
+
+    pkg = tmp_path / "toyfx"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "_shared.py").write_text("X = 1\n")
+    for name, order in (("zeta", 1), ("alpha", 2), ("beta", None)):
+        (pkg / f"{name}.py").write_text(f"NAME = '{name}'\n" + (f"ORDER = {order}\n" if order else ""))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert [m.NAME for m in effect_modules("toyfx")] == ["zeta", "alpha", "beta"]

@@ -1,6 +1,6 @@
 """The AMB's effect library: physical effects a rig may have and the nominal model lacks.
 
-One module per effect (:data:`MODULES`); each holds the effect's parameters and their validation,
+One module per effect (:data:`MODULES`: every module of this package); each holds the effect's parameters and their validation,
 how it enters the simulator (:func:`apply_effects`: kernel-parameter overrides or external-force
 arrays), the signature it leaves in the residual and the evidence for it, its parameterisation
 for fitting and its entry in ``closeloop.json`` (the interface: :class:`ssamb.device.EffectModule`).
@@ -28,14 +28,13 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from . import (amplifier_deadtime, cross_coupling, external_force, sensor_delay, sensor_gain, static_load,
-               unbalance)
+from ...device import effect_modules
 from ._common import EffectError, check_type
 
 __all__ = ["MODULES", "EFFECTS", "EffectError", "validate_effect", "apply_effects"]
 
-#: the effect modules, in the order close the loop ranks ties
-MODULES = (sensor_delay, unbalance, static_load, sensor_gain, amplifier_deadtime, cross_coupling, external_force)
+#: the effect modules (every module of this package), in the order close the loop ranks ties
+MODULES = tuple(effect_modules(__name__))
 
 #: name -> (required parameters, optional parameters)
 EFFECTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {m.NAME: (m.REQUIRED, m.OPTIONAL) for m in MODULES}

@@ -27,6 +27,7 @@ OPTIONAL = ()
 SIGNATURE = "common-mode shift of all four coil currents (same in both axes) and ripple distortion"
 SEARCHABLE = True
 NEEDS_HINT = False
+ORDER = 5
 
 
 def validate(p: dict, where: str) -> dict:

@@ -24,6 +24,7 @@ OPTIONAL = ()
 SIGNATURE = "residual in one axis coherent with the other axis' excitation; x current offset from gravity"
 SEARCHABLE = True
 NEEDS_HINT = False
+ORDER = 6
 
 
 def validate(p: dict, where: str) -> dict:

@@ -17,6 +17,7 @@ OPTIONAL = ("file", "t", "fx_n", "fy_n")
 SIGNATURE = "an arbitrary force (a test tool; not searched)"
 SEARCHABLE = False
 NEEDS_HINT = True
+ORDER = 99
 
 
 def validate(p: dict, where: str) -> dict:

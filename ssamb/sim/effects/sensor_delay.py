@@ -27,6 +27,7 @@ OPTIONAL = ()
 SIGNATURE = "phase lag of the sensor path linear in frequency (slope -2 pi tau), gain flat at 1"
 SEARCHABLE = True
 NEEDS_HINT = False
+ORDER = 1
 
 
 def validate(p: dict, where: str) -> dict:

@@ -25,6 +25,7 @@ OPTIONAL = ()
 SIGNATURE = "flat gain ratio of the sensor path (measured/model) different from 1, no phase"
 SEARCHABLE = True
 NEEDS_HINT = False
+ORDER = 4
 
 #: the calibration parameter a y sensor gain is indistinguishable from
 DCM_GAIN_KEY = "selfsensing.calibration_gain_error"

@@ -23,6 +23,7 @@ OPTIONAL = ()
 SIGNATURE = "offsets of the differential coil currents and controller outputs, none of the position"
 SEARCHABLE = True
 NEEDS_HINT = False
+ORDER = 3
 
 
 def validate(p: dict, where: str) -> dict:

@@ -29,6 +29,7 @@ OPTIONAL = ("phase_rad",)
 SIGNATURE = "a line at a frequency the excitation lacks, in both axes, in quadrature (rotating force)"
 SEARCHABLE = True
 NEEDS_HINT = True
+ORDER = 2
 
 
 def validate(p: dict, where: str) -> dict:
