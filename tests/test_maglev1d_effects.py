@@ -7,11 +7,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ssamb.device import EffectModel, get_device
-from ssamb.maglev1d.effects import MODULES
+from ssamb.device import EffectModel, effect_modules, get_device
 from ssamb.maglev1d.physics import neutral_knobs
 
 ROOT = Path(__file__).resolve().parent.parent
+MODULES = effect_modules("ssamb.maglev1d.effects")
 DEV = get_device("maglev1d")
 CFG = DEV.default_config()
 SETTINGS = SimpleNamespace(calibration={})
