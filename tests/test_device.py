@@ -137,3 +137,15 @@ def test_an_effect_is_a_module_of_the_device_package(tmp_path, monkeypatch):
         (pkg / f"{name}.py").write_text(f"NAME = '{name}'\n" + (f"ORDER = {order}\n" if order else ""))
     monkeypatch.syspath_prepend(str(tmp_path))
     assert [m.NAME for m in effect_modules("toyfx")] == ["zeta", "alpha", "beta"]
+
+
+def test_reasons_quote_absolute_parameters_in_their_unit():
+    """A parameter whose nominal value is 0 (an offset in m) has its uncertainties quoted in its
+    own unit, a relative one in per cent of the nominal value."""
+    from ssamb.closeloop.calibration import identifiability
+
+    info = np.diag([1.0 / 7.1e-4 ** 2, 1.0 / 0.5 ** 2])
+    out = identifiability(info, np.array([2e-4, 0.2]), ("sensors.offset_m", "mass_kg"), 1 / 3,
+                          relative=(False, True))["per_parameter"]
+    assert "0.00071" in out["sensors.offset_m"]["reason"] and "%" not in out["sensors.offset_m"]["reason"]
+    assert "50 %" in out["mass_kg"]["reason"]

@@ -170,13 +170,15 @@ def calibrate_model(cmp, specs: list[ParameterSpec], effects: list, settings: Es
     prob.evaluate_many = cmp.evaluate_many(cmp.fit, build)
     fit = map_fit(prob, settings, log)
     sd = np.array([s.prior_sd for s in specs])
-    ident = identifiability(fit.info, sd, tuple(s.key for s in specs), ratio, cov=fit.cov)
+    ident = identifiability(fit.info, sd, tuple(s.key for s in specs), ratio, cov=fit.cov,
+                            relative=tuple(s.relative for s in specs))
     conflicts = [s.key for s, t in zip(specs, fit.theta) if abs(t) > conflict_z * s.prior_sd]
     return Calibration(specs, fit, ident, conflicts)
 
 
 def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio: float,
-                    cov: np.ndarray | None = None, cov_noise: np.ndarray | None = None) -> dict:
+                    cov: np.ndarray | None = None, cov_noise: np.ndarray | None = None,
+                    relative: tuple | None = None) -> dict:
     r"""Which parameters the data identify, and why not the others (module docstring).
 
     Parameters
@@ -195,6 +197,9 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
         When ``cov`` is the covariance with the model's misfit (:attr:`MapFit.cov_misfit`),
         the one at the noise alone: a parameter identified by this one but not by ``cov`` is
         reported as lost to the misfit.
+    relative : tuple of bool, optional
+        Per parameter, whether it is relative to its nominal value (the reasons quote its
+        uncertainties in per cent) or absolute (in its own unit); default all relative.
 
     Returns
     -------
@@ -215,19 +220,21 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
     sv = np.sqrt(np.maximum(w[::-1], 0.0))
     V = V[:, ::-1]
     per = {}
+    rel = tuple(relative) if relative is not None else (True,) * len(names)
     for i, name in enumerate(names):
         tol = float(prior_sd[i])
+        fmt = _pct if rel[i] else _abs
         c = corr[i].copy()
         c[i] = 0.0
         j = int(np.argmax(np.abs(c)))
         ident = bool(se[i] <= ratio * tol) if math.isfinite(tol) else bool(se[i] < 1e5 * alone[i])
         per[name] = {"identified": ident, "se": float(se[i]), "se_alone": float(alone[i]), "tolerance": tol,
                      "partner": names[j] if len(names) > 1 else None, "correlation": float(c[j]) if len(names) > 1 else 0.0,
-                     "reason": None if ident else _reason(i, names, c, alone[i], se[i], tol, ratio)}
+                     "reason": None if ident else _reason(i, names, c, alone[i], se[i], tol, ratio, fmt)}
         if not ident and cov_noise is not None and math.isfinite(tol) and np.sqrt(max(cov_noise[i, i], 0.0)) <= ratio * tol:
             per[name]["reason"] = (f"the model misfits the data beyond their noise: with the misfit it is known only "
-                                   f"to +-{_pct(se[i])} (+-{_pct(float(np.sqrt(cov_noise[i, i])))} at the noise alone; "
-                                   f"tolerance +-{_pct(tol)})")
+                                   f"to +-{fmt(se[i])} (+-{fmt(float(np.sqrt(cov_noise[i, i])))} at the noise alone; "
+                                   f"tolerance +-{fmt(tol)})")
     combos = []
     for k in range(len(sv)):
         if sv[k] < 3.0:
@@ -250,8 +257,11 @@ def _condition(sv: np.ndarray) -> float | None:
     return float(sv[0] / sv[-1])
 
 
-def _reason(i: int, names: tuple, c: np.ndarray, alone: float, se: float, tol: float, ratio: float) -> str:
-    """Why parameter ``i`` is not identified: no sensitivity, or the parameters it trades off with."""
+def _reason(i: int, names: tuple, c: np.ndarray, alone: float, se: float, tol: float, ratio: float,
+            fmt=None) -> str:
+    """Why parameter ``i`` is not identified: no sensitivity, or the parameters it trades off with
+    (uncertainties written by ``fmt``: per cent of the nominal value, or absolute)."""
+    _pct = fmt or globals()["_pct"]
     if not math.isfinite(tol):
         return "the estimate did not move along a direction the data determine (no reliable sensitivity)"
     if alone > ratio * tol:
@@ -271,6 +281,11 @@ def _reason(i: int, names: tuple, c: np.ndarray, alone: float, se: float, tol: f
 
 def _pct(x: float) -> str:
     return f"{100 * x:.2g} %"
+
+
+def _abs(x: float) -> str:
+    """An absolute parameter's uncertainty, in its own unit (the unit its config key names)."""
+    return f"{x:.2g}"
 
 
 def findings(specs: list[ParameterSpec], theta: np.ndarray, ident: dict) -> tuple[dict, dict]:

@@ -128,8 +128,10 @@ def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: in
 
 
 def _welch_length(n: int) -> int:
-    """Welch segment length: a power of two, 16 half-overlapping segments or more, 256-16384."""
-    return int(2 ** max(8, min(14, int(math.log2(max(n // 8, 256))))))
+    """Welch segment length: a power of two, 16 half-overlapping segments or more, 256-16384; a
+    record shorter than 512 samples gets segments of at most half its length (16 at least)."""
+    nper = int(2 ** max(8, min(14, int(math.log2(max(n // 8, 256))))))
+    return nper if nper <= n // 2 else int(2 ** max(4, int(math.log2(max(n // 2, 16)))))
 
 
 @dataclass

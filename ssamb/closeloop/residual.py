@@ -136,6 +136,8 @@ def _excited_data(rec, frame: Frame, meas_v: dict, model_v: dict, S: dict, X: di
         return out
     seg = slice(frame.i0, frame.i0 + frame.n)
     nper = int(2 ** max(8, min(16, int(math.log2(max(frame.n // 8, 256))))))
+    if nper > frame.n // 2:             # a short record: segments of at most half its length
+        nper = int(2 ** max(4, int(math.log2(max(frame.n // 2, 16)))))
     for ax in rec.excited_axes:
         s = rec.signal[ax][seg]
         wm = welch_transfer(s, {v: meas_v[v][seg] for v in vn}, rec.fs_hz, nper)

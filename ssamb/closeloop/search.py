@@ -369,7 +369,7 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
     joint_est = dataclasses.replace(est, max_iter=settings.joint_iterations)
     fit = map_fit(prob, joint_est, (lambda m: _log(progress, "  joint " + m)) if progress else None)
     ident = identifiability(fit.info, prob.prior_sd, names, settings.identifiable_ratio, cov=fit.cov_misfit,
-                            cov_noise=fit.cov)
+                            cov_noise=fit.cov, relative=tuple(sp.relative for sp in sub) + (False,) * sum(sizes))
     merged = dict(cal.ident)
     merged["per_parameter"] = {**cal.ident["per_parameter"], **ident["per_parameter"]}
     theta_cal[free] = fit.theta[: len(free)]
@@ -465,7 +465,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         ident = cal.ident
         if cal.fit is not None:           # the final model: its errors with the misfit the data show
             ident = identifiability(cal.fit.info, np.array([sp.prior_sd for sp in specs]), tuple(sp.key for sp in specs),
-                                    settings.identifiable_ratio, cov=cal.fit.cov_misfit, cov_noise=cal.fit.cov)
+                                    settings.identifiable_ratio, cov=cal.fit.cov_misfit, cov_noise=cal.fit.cov,
+                                    relative=tuple(sp.relative for sp in specs))
         out.joint = {"fit": cal.fit, "ident": ident, "theta_cal": cal.theta}
     for a in out.accepted:
         sig = (np.abs(a["theta"]) > 3 * a["se"]) & (np.abs(a["theta"]) > 1e-3 * a["model"].step)
