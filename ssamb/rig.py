@@ -459,3 +459,117 @@ def save_measured_compressed(path: str | Path, arrays: Mapping[str, Any], meta: 
     from .io import save_measured
 
     save_measured(path, arrays, meta, compress=True)
+
+
+# -- the randomized suite's draws (bench/closeloop_suite.py, tests) ---------------------------------
+#: experiment kinds a rig runs, as the randomized close-the-loop suite draws them
+SUITE_KINDS = ("multisine", "pulses", "sweep", "rest")
+#: the library effects the suite draws
+SUITE_EFFECTS = ("sensor_delay", "unbalance", "static_load", "sensor_gain", "amplifier_deadtime", "cross_coupling")
+#: logging noise of the suite's rigs (the logger's own ADC)
+SUITE_NOISE = {"position_m": 3.0e-8, "current_a": 3.0e-4}
+#: the calibratable parameters and how far a rig's may lie from the model's (uniform; relative, the
+#: calibration offset absolute in m)
+SUITE_PERTURB = {"table1.mass_kg": 0.05, "table1.airgap_m": 0.05, "table1.i_bias_a": 0.05, "table1.coil_turns": 0.05,
+                 "table1.r_coil_ohm": 0.05, "magnetics.iron_conductivity_s_per_m": 0.05, "table1.mu_r": 0.05,
+                 "table1.v_supply_v": 0.05, "sensors.x_bandwidth_hz": 0.05,
+                 "selfsensing.calibration_gain_error": 0.05, "selfsensing.calibration_offset_error_m": 5.0e-6}
+
+
+def draw_experiment(kind: str, rng: np.random.Generator, duration_s: tuple = (1.0, 1.6)) -> dict:
+    """An experiment of ``kind`` as a rig might run it: ``{experiment, duration_s}`` for a
+    scenario file (``duration_s`` None when the excitation sets it).
+
+    * ``multisine``: a random-phase position multisine, lines every 5 or 10 Hz from 5-20 Hz up to
+      50-250 Hz, 10-60 um peak, on x, y or both, whole periods filling ``duration_s``;
+    * ``pulses``: the identification's rectangular current pulses before the amplifiers,
+      0.1-0.4 A, 0.2 ms to 2-6 ms wide, on x, y or both;
+    * ``sweep``: a linear position sweep, 15-50 um, from 5-15 Hz to 50-150 Hz over the record;
+    * ``rest``: levitation without excitation (the loop's response to its own noise).
+    """
+    lo, hi = duration_s
+    T = float(rng.uniform(lo, hi))
+    axis = str(rng.choice(["x", "y", "both"]))
+    seed = int(rng.integers(1, 100_000))
+    if kind == "multisine":
+        res = float(rng.choice([5.0, 10.0]))
+        f_min = res * max(1, int(round(float(rng.uniform(5.0, 20.0)) / res)))
+        f_max = res * int(round(float(rng.uniform(50.0, 250.0)) / res))
+        periods = max(5, int(round(T * res)))
+        return {"experiment": {"kind": "multisine", "point": "position", "axis": axis,
+                               "amplitude_m": float(rng.uniform(10e-6, 60e-6)), "f_min_hz": f_min, "f_max_hz": f_max,
+                               "f_resolution_hz": res, "periods": periods, "seed": seed}, "duration_s": None}
+    if kind == "pulses":
+        return {"experiment": {"kind": "pulses", "point": "current", "axis": axis,
+                               "amplitude_a": float(rng.uniform(0.1, 0.4)), "min_width_s": 2.0e-4,
+                               "max_width_s": float(rng.uniform(2e-3, 6e-3)), "seed": seed}, "duration_s": T}
+    if kind == "sweep":
+        return {"experiment": {"kind": "sweep", "point": "position", "axis": axis,
+                               "amplitude_m": float(rng.uniform(15e-6, 50e-6)),
+                               "f_start_hz": float(rng.uniform(5.0, 15.0)), "f_stop_hz": float(rng.uniform(50.0, 150.0)),
+                               "sweep_duration_s": T, "law": "linear"}, "duration_s": T}
+    if kind == "rest":
+        return {"experiment": {"kind": "none", "seed": seed}, "duration_s": T}
+    raise ValueError(f"experiment kind '{kind}': unknown (known: {', '.join(SUITE_KINDS)})")
+
+
+def draw_effect(effect: str, rng: np.random.Generator) -> dict:
+    """One library effect with parameters from the ranges a rig may have."""
+    if effect == "sensor_delay":
+        return {"name": effect, "axis": str(rng.choice(["x", "y", "both"])), "delay_s": float(rng.uniform(5e-6, 100e-6))}
+    if effect == "unbalance":
+        f = float(rng.uniform(10.0, 200.0))
+        return {"name": effect, "speed_hz": f, "mass_ecc_kgm": float(rng.uniform(0.5, 10.0)) / (2 * math.pi * f) ** 2,
+                "phase_rad": float(rng.uniform(0, 2 * math.pi))}
+    if effect == "static_load":
+        f, a = float(rng.uniform(1.0, 20.0)), float(rng.uniform(0, 2 * math.pi))
+        return {"name": effect, "fx_n": f * math.cos(a), "fy_n": f * math.sin(a)}
+    if effect == "sensor_gain":
+        g = float(rng.uniform(0.02, 0.2)) * float(rng.choice([-1.0, 1.0]))
+        return {"name": effect, "axis": str(rng.choice(["x", "y", "both"])), "gain": 1.0 + g}
+    if effect == "amplifier_deadtime":
+        return {"name": effect, "deadtime_s": float(rng.uniform(0.2e-6, 2e-6))}
+    if effect == "cross_coupling":
+        return {"name": effect, "coefficient": float(rng.uniform(0.02, 0.2))}
+    raise ValueError(f"effect '{effect}': unknown (known: {', '.join(SUITE_EFFECTS)})")
+
+
+def draw_perturbation(rng: np.random.Generator, cfg: Mapping, widths: Mapping = SUITE_PERTURB) -> tuple[dict, dict]:
+    """Every calibratable parameter off by a uniform draw within ``widths``: ``(overrides, changes)``
+    (changes relative to the nominal value, absolute where it is 0)."""
+    from .config import get
+
+    ov, delta = {}, {}
+    for key, width in widths.items():
+        nominal = float(get(cfg, key))
+        d = float(rng.uniform(-width, width))
+        delta[key] = d
+        ov[key] = nominal * (1 + d) if nominal != 0 else nominal + d
+    return ov, delta
+
+
+def effective_truth(scenario: Mapping, delta: Mapping, y_gain: float = 1.0) -> dict:
+    """The rig's parameters as the model can see them (changes as in :func:`draw_perturbation`).
+
+    The self-sensing calibration gain and offset errors act on top of a clamped calibration
+    procedure that makes the DCM map exact at its positions for whatever physics it runs on; the
+    model's own procedure is noise-free. So the errors the model must find are the rig's
+    procedure's own (its noise, at its physics and with its effects: a cross coupling or a dead
+    time changes what the clamped calibration reads) on top of the scenario's: the rig's
+    calibration against a noise-free one at the same physics and effects. A y sensor gain
+    ``G`` scales the calibrated estimate, :math:`y_{ss} = G (g y_{raw} + o)`: it *is* a
+    calibration error, of gain :math:`G g` and offset :math:`G o` (``y_gain``: the part of it
+    the analysis did not name as an effect).
+    """
+    from .sim import simulate
+
+    rig_cfg, eff = scenario["cfg"], scenario["effects"]
+    rig_cal = simulate(rig_cfg, duration_s=0.005, excitation=scenario["excitation"], start=scenario["start"],
+                       seed=scenario["seed"], effects=eff, progress=False).meta["selfsensing_calibration"]
+    model_cal = simulate(rig_cfg, arrays={"r_y": np.zeros(400)}, calibration_noise=False, effects=eff,
+                         progress=False).meta["selfsensing_calibration"]
+    g, o = "selfsensing.calibration_gain_error", "selfsensing.calibration_offset_error_m"
+    out = dict(delta)
+    out[g] = y_gain * rig_cal["gain"] * (1 + delta.get(g, 0.0)) / model_cal["gain"] - 1
+    out[o] = y_gain * (rig_cal["offset_m"] + delta.get(o, 0.0)) - model_cal["offset_m"]
+    return out

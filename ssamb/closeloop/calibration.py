@@ -156,16 +156,17 @@ class Calibration:
 
 
 def calibrate_model(cmp, specs: list[ParameterSpec], effects: list, settings: EstimateSettings, ratio: float,
-                    conflict_z: float, seed0: int = 1, start=None, log=None) -> Calibration:
+                    conflict_z: float, seed0: int = 1, start=None, log=None, step_rel: float = 0.05) -> Calibration:
     """MAP calibration of ``specs`` on the fitting part of ``cmp`` (a
-    :class:`~ssamb.closeloop.comparison.Comparison`) with ``effects`` in the model."""
+    :class:`~ssamb.closeloop.comparison.Comparison`) with ``effects`` in the model
+    (finite-difference steps at most ``step_rel`` of a relative parameter's nominal value)."""
     if not specs:
         return Calibration(specs, None, {"per_parameter": {}, "rank": 0, "n_parameters": 0, "condition": 1.0,
                                          "singular_values": [], "combinations": []}, [])
 
     def build(theta):
         return overrides_of(specs, theta), list(effects)
-    prob = calibration_problem(specs, None, seed0=seed0, start=start, groups=cmp.groups(cmp.fit))
+    prob = calibration_problem(specs, None, seed0=seed0, start=start, groups=cmp.groups(cmp.fit), max_step_rel=step_rel)
     prob.evaluate = cmp.evaluator(cmp.fit, build)
     prob.evaluate_many = cmp.evaluate_many(cmp.fit, build)
     fit = map_fit(prob, settings, log)

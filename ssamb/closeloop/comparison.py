@@ -74,9 +74,15 @@ class PartResidual:
         return cls(part.layout, part.whitener, part.data)
 
     def model_features(self, channels: dict) -> Features:
-        """Feature values of model channels (views or channels; no noise: the whitener is fixed)."""
-        ch = channels if all(v in channels for v in self.layout.views) else self.layout.device.views(channels)
-        return features(self.layout, ch, noise=False)
+        """Feature values of model channels (views or channels; no noise: the whitener is fixed).
+        A prediction's ``runs`` (its replays' channels, :meth:`Comparison.prediction`) give its
+        ``band`` features."""
+        dev = self.layout.device
+        ch = channels if all(v in channels for v in self.layout.views) else dev.views(channels)
+        runs = channels.get("runs") if self.layout.bands else None
+        if runs:
+            runs = [r if all(v in r for v in self.layout.views) else dev.views(r) for r in runs]
+        return features(self.layout, ch, noise=False, runs=runs)
 
     def __call__(self, channels: dict) -> np.ndarray:
         return self.whitener.residual(self.model_features(channels), self.data)
@@ -127,8 +133,10 @@ class Comparison:
         fs, sig, P, lines = record.fs_hz, record.signal, split.n_period, record.lines_hz
         fit_frame = make_frame(fs, split.i0, split.i_fit - split.i0, sig, P, lines)
         hold_frame = make_frame(fs, split.i_fit, split.i_end - split.i_fit, sig, P, lines)
-        c.fit = Part(fit_frame, make_layout(fit_frame, sig, ripple, dev.cost_views, device=dev), None)
-        c.hold = Part(hold_frame, make_layout(hold_frame, sig, ripple, dev.cost_views, device=dev), None)
+        c.fit = Part(fit_frame, make_layout(fit_frame, sig, ripple, dev.cost_views, device=dev, floor=floor,
+                                            exclude_hz=ripple), None)
+        c.hold = Part(hold_frame, make_layout(hold_frame, sig, ripple, dev.cost_views, device=dev, floor=floor,
+                                              exclude_hz=ripple), None)
         c._measure()
         return c
 
@@ -154,8 +162,14 @@ class Comparison:
 
     # -- the model ---------------------------------------------------------------------------
     def prediction(self, overrides=None, effects=(), n: int | None = None) -> dict:
-        """The model's expected channels: the mean of the replays with :attr:`seeds`."""
-        return self.replay.mean(effects, n, overrides, self.seeds)
+        """The model's expected channels: the mean of the replays with :attr:`seeds`. When the
+        comparison reads power spectra (``band`` features), the replays' channels too (``runs``):
+        the density of a mean of replays holds only a fraction of their noise."""
+        out = self.replay.mean(effects, n, overrides, self.seeds)
+        if self.fit is not None and (self.fit.layout.bands or self.hold.layout.bands):
+            out["runs"] = [{c: r[c] for c in self.device.channels}
+                           for r in self.replay.runs(effects, n, overrides, self.seeds)]
+        return out
 
     def calibrate_noise(self, overrides=None, effects=()) -> None:
         """Whiteners of both parts from the replays at ``overrides``/``effects`` (the nominal model).
@@ -166,10 +180,14 @@ class Comparison:
         self._nominal = {"overrides": overrides, "effects": tuple(effects)}
         runs = [self.device.views(r) for r in self.replay.runs(effects, None, overrides, self.seeds)]
         mean = {v: np.mean([r[v] for r in runs], axis=0) for v in runs[0]}
-        fac = replicate_factors([features(self.fit.layout, r) for r in runs]) if len(runs) >= 3 else None
         ones = (np.ones(len(self.device.cost_views)), np.ones(len(self.device.cost_views)))
+        fac_fit = replicate_factors([features(self.fit.layout, r) for r in runs]) if len(runs) >= 3 else None
         for part in (self.fit, self.hold):
-            fm = features(part.layout, mean, factors=ones)
+            fac = fac_fit
+            if part is self.hold and fac is not None and (part.layout.n_win or part.layout.bands):
+                # the replicates' spread of windows and bands depends on the part's length
+                fac = tuple(fac_fit[:2]) + tuple(replicate_factors([features(part.layout, r) for r in runs])[2:])
+            fm = features(part.layout, mean, factors=ones, runs=runs)
             if fac is not None:
                 fm = scale_views(fm, *fac)
             part.model_factors = fac or ()
@@ -228,13 +246,16 @@ class Comparison:
     def groups(self, part: Part) -> list:
         """Entries of the whitened residual that share a noise level: per view, its DC entry
         (a replay's random state -- hysteresis, the current loops' integrators, intermittent duty
-        saturation -- moves DC far more than the within-record noise shows) and its other
-        entries."""
+        saturation -- moves DC far more than the within-record noise shows), its windows (slow
+        trends: the same), its bands (log densities) and its other entries."""
         g = part.whitener.groups()
-        dc = set(g["dc"].tolist())
+        special = {k: set(g[k].tolist()) for k in ("dc", "win", "band")}
+        other = set().union(*special.values())
         out = []
         for v in part.layout.views:
             idx = g.get("view:" + v, np.zeros(0, int))
-            out.append(np.array([i for i in idx if i not in dc], int))
-            out.append(np.array([i for i in idx if i in dc], int))
+            out.append(np.array([i for i in idx if i not in other], int))
+            out.append(np.array([i for i in idx if i in special["dc"]], int))
+            out.append(np.array([i for i in idx if i in special["win"]], int))
+            out.append(np.array([i for i in idx if i in special["band"]], int))
         return [x for x in out if len(x)]

@@ -16,7 +16,21 @@ is estimated from the data themselves, for measured and modelled channels alike:
   the excitation has power;
 * ``lines``: phasors at frequencies the excitation does not explain (a rotating unbalance, say),
   in DFT units (:math:`\tfrac n2 A` for a sinusoid :math:`\mathrm{Re}\,A e^{j\omega t}`), so
-  that all frequency features share one scale.
+  that all frequency features share one scale;
+* ``win`` (non-periodic frames): slow trends. The segment is cut into :math:`W` consecutive
+  windows of :math:`L` samples, and the window means :math:`\bar x_w` are expanded in the
+  orthonormal cosine basis (DCT-II), :math:`c_j = \sum_w \bar x_w \sqrt{2/W}\cos(\pi j (w +
+  \tfrac12)/W)`, :math:`j = 1 \dots W-1` (the constant, :math:`j = 0`, is the ``dc`` feature): a
+  response to a slowly varying reference, a drift. Noise that is white across windows keeps its
+  variance in every coefficient and the coefficients independent;
+* ``band`` (the device's band views, :attr:`ssamb.device.FeatureSpec.band_views`): the loop's
+  response to its own noise, where no excitation is usable. In bands of Welch bins without
+  excitation power, :math:`b = \ln \hat P - (\psi(\nu/2) - \ln(\nu/2))`: the log of the
+  band's power spectral density, less the bias of the log of a :math:`\chi^2_\nu/\nu` variable
+  (:math:`\nu` its degrees of freedom, :func:`band_dof`), so that the difference of two
+  estimates with different :math:`\nu` (the data; the mean over replays of their densities) is
+  unbiased. Its variance is :math:`\psi'(\nu/2)` (trigamma), and the estimates of two views
+  in one band correlate as their coherence.
 
 **Noise.** Each feature comes with the complex covariance across views of its noise,
 :math:`C(k) = E[\,\delta X(k)\,\delta X(k)^H]`. For a periodic frame it is the band average of
@@ -26,7 +40,10 @@ bins a band average barely notices), rescaled per view by the pooled period-to-p
 the excited bins when there are enough periods (the estimator's pseudo-noise is cyclostationary:
 the off-grid floor can be 10-20 % low at the lines). The DC covariance is that of the lowest
 off-grid bins. For a Welch frame the covariance of the residual of a per-bin regression on the
-excitation across segments (Bendat & Piersol) gives the noise of the cross-spectra.
+excitation across segments (Bendat & Piersol) gives the noise of the cross-spectra; the same
+regression at the lowest Welch bins gives the low-frequency noise of ``dc`` and ``win`` (a
+window mean of :math:`L` samples has variance :math:`f_s S(0^+)/(2L)`, :math:`S` the one-sided
+density), without the response the excitation drives there.
 
 The covariance of a **difference** between a measured and a modelled feature is the sum of the
 two covariances (independent noise): :class:`Whitener` factors it once and turns any such
@@ -44,7 +61,7 @@ from scipy import signal
 from .spectra import Frame, _bands
 
 __all__ = ["Features", "Layout", "make_layout", "features", "Whitener", "line_phasors",
-           "scale_views", "replicate_factors"]
+           "scale_views", "replicate_factors", "band_plan", "band_dof", "log_bias", "log_var"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +88,15 @@ class Layout:
         Welch frames: per axis, the excitation over the whole record.
     device : ssamb.device.Device or None
         The device whose views these are (to derive them from channels).
+    win_len, n_win : int
+        Non-periodic frames: samples per window and windows of the ``win`` features (0: none).
+    band_views : tuple
+        Views whose ``band`` features are compared (a subset of ``views``).
+    bands : tuple of numpy.ndarray
+        The Welch bins (segments of ``band_nper`` samples) of each band.
+    band_floor : tuple
+        Per band view, the smallest one-sided density assumed (the view's noise floor as white
+        noise): a channel without noise would otherwise give the log of zero.
     """
 
     frame: Frame
@@ -81,11 +107,28 @@ class Layout:
     views: tuple = ()
     signals: dict = field(default_factory=dict, repr=False)
     device: object = field(default=None, repr=False, compare=False)
+    win_len: int = 0
+    n_win: int = 0
+    band_views: tuple = ()
+    bands: tuple = field(default=(), repr=False)
+    band_nper: int = 0
+    band_floor: tuple = ()
 
     @property
     def f_bins_hz(self) -> np.ndarray:
         fs = self.frame.fs_hz
         return self.bins * fs / (self.frame.n if self.nperseg == 0 else self.nperseg)
+
+    @property
+    def f_bands_hz(self) -> np.ndarray:
+        """Centre frequency of each band (mean of its bins' frequencies)."""
+        return np.array([float(np.mean(b)) * self.frame.fs_hz / self.band_nper for b in self.bands])
+
+    @property
+    def t_win_s(self) -> np.ndarray:
+        """Centre time of each window (from the record's start)."""
+        fr = self.frame
+        return (fr.i0 + (np.arange(self.n_win) + 0.5) * self.win_len) / fr.fs_hz
 
     def with_lines(self, lines_hz) -> "Layout":
         """The same layout with other line frequencies."""
@@ -94,7 +137,8 @@ class Layout:
         return dataclasses.replace(self, lines_hz=tuple(float(f) for f in lines_hz))
 
 
-def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: int = 64, device=None) -> Layout:
+def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: int = 64, device=None,
+                band_views=None, floor=None, exclude_hz=()) -> Layout:
     """The feature layout of ``frame``.
 
     Parameters
@@ -108,11 +152,30 @@ def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: in
         The views compared.
     max_bins : int
         Welch frames: at most this many bins, the strongest of the excitation's power.
+    device : ssamb.device.Device, optional
+        The device (its :attr:`~ssamb.device.FeatureSpec.band_views` are the default band views).
+    band_views : sequence of str, optional
+        Views whose power spectra are compared in bands (default: the device's, among ``views``).
+    floor : sequence of float, optional
+        Per view of ``views``, the smallest noise level per sample (the bands' floor).
+    exclude_hz : sequence of float
+        Frequencies the bands leave out (the device's own lines).
     """
+    if band_views is None:
+        band_views = tuple(getattr(getattr(device, "features", None), "band_views", ()) or ())
+    band_views = tuple(v for v in views if v in band_views)
+    fl = dict(zip(views, np.zeros(len(views)) if floor is None else np.asarray(floor, float)))
+    extra = {}
+    if band_views:
+        bnper = _welch_length(frame.n)
+        bands = band_plan(frame, signals, bnper, exclude_hz)
+        if bands:
+            extra = {"band_views": band_views, "bands": tuple(bands), "band_nper": bnper,
+                     "band_floor": tuple(2.0 * fl[v] ** 2 / frame.fs_hz for v in band_views)}
     if frame.periodic:
         kb = np.unique(np.concatenate([np.asarray(v, int) for v in frame.excited.values()])) if frame.excited else \
             np.zeros(0, int)
-        return Layout(frame, kb, (), 0, tuple(float(f) for f in lines_hz), tuple(views), device=device)
+        return Layout(frame, kb, (), 0, tuple(float(f) for f in lines_hz), tuple(views), device=device, **extra)
     nper = _welch_length(frame.n)
     seg = slice(frame.i0, frame.i0 + frame.n)
     power = np.zeros(nper // 2 + 1)
@@ -123,8 +186,146 @@ def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: in
     cand = cand[cand >= 1]
     if len(cand) > max_bins:
         cand = np.sort(cand[np.argsort(-power[cand])[:max_bins]])
+    L = max(nper // 2, 1)
+    W = frame.n // L
+    if W >= 3:
+        extra.update(win_len=frame.n // W, n_win=W)
     return Layout(frame, cand, tuple(signals), nper, tuple(float(f) for f in lines_hz), tuple(views),
-                  {a: np.asarray(s, float) for a, s in signals.items()}, device)
+                  {a: np.asarray(s, float) for a, s in signals.items()}, device, **extra)
+
+
+def band_plan(frame: Frame, signals: dict, nper: int, exclude_hz=(), n_bands: int = 16,
+              min_bins: int = 4) -> list:
+    """Bands of Welch bins (segments of ``nper`` samples over ``frame``) without excitation power.
+
+    A bin is usable when every excitation's Welch power there is below 1e-4 of its largest
+    (all bins when nothing is excited), it is not one of the two lowest (the segments' mean
+    removal) and it lies more than two bins from each of ``exclude_hz``. Usable bins are grouped
+    into about ``n_bands`` log-spaced bands of at least ``min_bins`` bins each.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        The bins of each band, lowest band first (empty when fewer than ``min_bins`` are usable).
+    """
+    nb = nper // 2 + 1
+    if frame.n < nper:
+        return []
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    usable = np.ones(nb, bool)
+    usable[:2] = False
+    for s in signals.values():
+        x = np.asarray(s, float)[seg]
+        if np.ptp(x) == 0:
+            continue
+        _, p = signal.welch(x, nperseg=nper, noverlap=nper // 2, window="hann", detrend="constant")
+        usable &= p <= 1e-4 * max(float(p.max()), 1e-300)
+    df = frame.fs_hz / nper
+    k = np.arange(nb)
+    for f in np.atleast_1d(np.asarray(exclude_hz, float)):
+        usable &= np.abs(k * df - f) > 2.5 * df
+    idx = np.flatnonzero(usable)
+    if len(idx) < min_bins:
+        return []
+    edges = np.geomspace(2, nb, n_bands + 1)
+    out, cur = [], []
+    j = 0
+    for e in edges[1:]:
+        while j < len(idx) and idx[j] < e:
+            cur.append(idx[j])
+            j += 1
+        if len(cur) >= min_bins:
+            out.append(np.asarray(cur, int))
+            cur = []
+    if cur:
+        if out:
+            out[-1] = np.concatenate([out[-1], np.asarray(cur, int)])
+        elif len(cur) >= min_bins:
+            out.append(np.asarray(cur, int))
+    return out
+
+
+def band_dof(bins: np.ndarray, n_seg: int) -> float:
+    r"""Degrees of freedom :math:`\nu` of the mean Welch density over the set ``bins`` (Hann,
+    half-overlapping segments, ``n_seg`` of them).
+
+    Each bin's averaged periodogram has :math:`\nu = 2 K`, :math:`K = n_{seg}/1.06`; the
+    periodograms of Hann bins one and two apart correlate with :math:`(2/3)^2` and
+    :math:`(1/6)^2`, so a sum over :math:`b` bins with :math:`n_1, n_2` such pairs has
+    :math:`\nu = 2 K b^2 / (b + \tfrac89 n_1 + \tfrac1{18} n_2)` (Satterthwaite).
+    """
+    b = np.asarray(bins, int)
+    d = np.abs(b[:, None] - b[None, :])
+    n1, n2 = int(np.sum(d == 1)) // 2, int(np.sum(d == 2)) // 2
+    k_eff = max(1.0, n_seg / 1.06)
+    return float(2.0 * k_eff * len(b) ** 2 / (len(b) + 8.0 / 9.0 * n1 + n2 / 18.0))
+
+
+def log_bias(nu: float) -> float:
+    r""":math:`E \ln(\chi^2_\nu/\nu) = \psi(\nu/2) - \ln(\nu/2)`."""
+    from scipy.special import digamma
+
+    return float(digamma(nu / 2.0) - math.log(nu / 2.0))
+
+
+def log_var(nu: float) -> float:
+    r""":math:`\mathrm{var}\,\ln\chi^2_\nu = \psi'(\nu/2)`."""
+    from scipy.special import polygamma
+
+    return float(polygamma(1, nu / 2.0))
+
+
+def _band_spectra(layout: Layout, xs: list) -> tuple[np.ndarray, np.ndarray, int]:
+    """The band views' summed cross-spectra per band, averaged over segments and over the signal
+    sets ``xs`` (each V x n over the frame): ``(C (B, Vb, Vb) complex, one-sided density scale,
+    segments)``."""
+    idx = [layout.views.index(v) for v in layout.band_views]
+    acc = None
+    n_seg = 0
+    for x in xs:
+        Y = _welch_segments(x[idx], layout.band_nper)                   # S x Vb x bins
+        n_seg = Y.shape[0]
+        C = np.stack([np.einsum("svk,suk->vu", Y[:, :, b], Y[:, :, b].conj()) / Y.shape[0] for b in layout.bands])
+        acc = C if acc is None else acc + C
+    w2 = float(np.sum(signal.windows.hann(layout.band_nper, sym=False) ** 2))
+    return acc / len(xs), 2.0 / (layout.frame.fs_hz * w2), n_seg
+
+
+def _band_values(layout: Layout, xs: list, noise: bool):
+    """``band`` values (B, Vb) of the mean density of the signal sets ``xs`` (module docstring), and
+    with ``noise`` their covariance (B, Vb, Vb): trigamma times the band's coherence."""
+    C, scale, n_seg = _band_spectra(layout, xs)
+    sizes = [len(b) for b in layout.bands]
+    floor = np.asarray(layout.band_floor, float)
+    P = np.real(np.einsum("bvv->bv", C)) * scale / np.asarray(sizes)[:, None] + floor[None, :]
+    nus = [band_dof(b, n_seg) * len(xs) for b in layout.bands]
+    vals = np.log(P) - np.array([log_bias(nu) for nu in nus])[:, None]
+    if not noise:
+        return vals, None
+    cov = np.zeros(C.shape)
+    for j, nu in enumerate(nus):
+        d = np.sqrt(np.maximum(np.real(np.diag(C[j])), 1e-300))
+        coh = np.abs(C[j] / np.outer(d, d)) ** 2
+        # the floor is noise of its own in every view: it lowers the coherence
+        pv = np.real(np.diag(C[j])) * scale / sizes[j]
+        share = pv / (pv + floor)
+        coh = coh * np.sqrt(np.outer(share, share))
+        np.fill_diagonal(coh, 1.0)
+        cov[j] = log_var(nu) * coh
+    return vals, cov
+
+
+def _window_means(layout: Layout, x: np.ndarray) -> np.ndarray:
+    """Means of the ``n_win`` consecutive windows of ``win_len`` samples: V x W."""
+    W, L = layout.n_win, layout.win_len
+    return x[:, : W * L].reshape(x.shape[0], W, L).mean(axis=2)
+
+
+def _win_values(layout: Layout, x: np.ndarray) -> np.ndarray:
+    """``win`` values: the window means' orthonormal cosine coefficients 1..W-1, (W-1) x V."""
+    if not layout.n_win:
+        return np.zeros((0, x.shape[0]))
+    return sfft.dct(_window_means(layout, x), type=2, norm="ortho", axis=1)[:, 1:].T
 
 
 def _welch_length(n: int) -> int:
@@ -140,8 +341,10 @@ class Features:
 
     ``dc`` (V,), ``bins`` (K, V) or (A, K, V) for Welch frames, ``lines`` (L, V) complex, each
     with its noise covariance ``cov_dc`` (V, V), ``cov_bins`` (K, V, V) or (A, K, V, V),
-    ``cov_lines`` (L, V, V). ``factors`` are the per-view ``(bins, dc)`` factors applied to the
-    off-grid covariances (:func:`_period_factors`), to reuse on another segment of the record.
+    ``cov_lines`` (L, V, V); ``win`` (W-1, V) and ``band`` (B, Vb) real, with ``cov_win``
+    (W-1, V, V) and ``cov_band`` (B, Vb, Vb). ``factors`` are the per-view ``(bins, dc)``
+    factors applied to the off-grid covariances (:func:`_period_factors`), to reuse on another
+    segment of the record (``(bins, dc, win, band)`` after :func:`scale_views`).
     """
 
     dc: np.ndarray
@@ -151,6 +354,10 @@ class Features:
     cov_bins: np.ndarray
     cov_lines: np.ndarray
     factors: tuple = ()
+    win: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    cov_win: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    band: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    cov_band: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
 
 
 def _stack(layout: Layout, ch: dict, seg: slice) -> np.ndarray:
@@ -211,42 +418,67 @@ def _period_factors(layout: Layout, x: np.ndarray, diag_bins: np.ndarray, diag_d
     return fac, fac_dc
 
 
-def scale_views(f: "Features", fac_bins: np.ndarray, fac_dc: np.ndarray) -> "Features":
+def scale_views(f: "Features", fac_bins: np.ndarray, fac_dc: np.ndarray, fac_win=None, fac_band=None) -> "Features":
     r"""The features with their noise covariances scaled per view (``C -> D C D``,
-    :math:`D = \mathrm{diag}\sqrt{\mathrm{fac}}`; lines take the bins' factors)."""
+    :math:`D = \mathrm{diag}\sqrt{\mathrm{fac}}`; lines take the bins' factors, windows the DC's
+    unless given; ``fac_band`` is per band view)."""
     import dataclasses
 
-    d, e = np.sqrt(fac_bins), np.sqrt(fac_dc)
+    fac_win = fac_dc if fac_win is None else fac_win
+    d, e, w = np.sqrt(fac_bins), np.sqrt(fac_dc), np.sqrt(fac_win)
+    kw = {}
+    if f.cov_band.size and fac_band is not None:
+        b = np.sqrt(np.asarray(fac_band, float))
+        kw["cov_band"] = f.cov_band * b[:, None] * b[None, :]
+    factors = (np.asarray(fac_bins), np.asarray(fac_dc)) if fac_band is None and f.cov_win.size == 0 and \
+        f.cov_band.size == 0 else (np.asarray(fac_bins), np.asarray(fac_dc), np.asarray(fac_win),
+                                   None if fac_band is None else np.asarray(fac_band))
     return dataclasses.replace(f, cov_bins=f.cov_bins * d[:, None] * d[None, :],
                                cov_lines=f.cov_lines * d[:, None] * d[None, :], cov_dc=f.cov_dc * np.outer(e, e),
-                               factors=(np.asarray(fac_bins), np.asarray(fac_dc)))
+                               cov_win=f.cov_win * w[:, None] * w[None, :] if f.cov_win.size else f.cov_win,
+                               factors=factors, **kw)
 
 
-def replicate_factors(fs: list) -> tuple[np.ndarray, np.ndarray]:
+def replicate_factors(fs: list) -> tuple:
     r"""Per-view factors from replicates: the features of ``m`` replays with distinct seeds.
 
     Bins: the median over bins of the replicates' variance over the predicted (off-grid)
     variance of one replay, corrected for the median of :math:`\chi^2_{2(m-1)}/(2(m-1))`; DC:
     the replicates' variance over the predicted one. Never below 1: a replay's own noise is at
     least what its off-grid bins show (the self-sensing estimator's pseudo-noise and the
-    current loops' drift add to it at the lines and at DC).
+    current loops' drift add to it at the lines and at DC). Windows and bands (real entries)
+    likewise, over :math:`\chi^2_{m-1}/(m-1)`. Returns ``(bins, dc)``, or ``(bins, dc, win,
+    band)`` when the features have windows or bands.
     """
     m = len(fs)
+    nv = fs[0].dc.shape[-1]
+    has_more = fs[0].win.size > 0 or fs[0].band.size > 0
     if m < 3:
-        nv = fs[0].dc.shape[-1]
-        return np.ones(nv), np.ones(nv)
+        one = np.ones(nv)
+        return (one, one, one, np.ones(fs[0].band.shape[-1])) if has_more else (one, one)
     B = np.array([f.bins for f in fs])
     emp = np.sum(np.abs(B - B.mean(axis=0)) ** 2, axis=0) / (m - 1)
     pred = np.mean([np.real(np.einsum("...vv->...v", f.cov_bins)) for f in fs], axis=0)
     nu = 2 * (m - 1)
     med = (1 - 2 / (9 * nu)) ** 3
     ratio = (emp / np.maximum(pred, 1e-300)).reshape(-1, emp.shape[-1])
-    # no excited bins (levitation at rest): the DC factor stands alone
-    fac = np.maximum(np.median(ratio, axis=0) / med, 1.0) if ratio.shape[0] else np.ones(emp.shape[-1])
+    fac = np.maximum(np.median(ratio, axis=0) / med, 1.0) if ratio.shape[0] else np.ones(nv)
     D = np.array([f.dc for f in fs])
     pred_dc = np.mean([np.diag(f.cov_dc) for f in fs], axis=0)
     fac_dc = np.maximum(D.var(axis=0, ddof=1) / np.maximum(pred_dc, 1e-300), fac)
-    return fac, fac_dc
+    if not has_more:
+        return fac, fac_dc
+    med1 = (1 - 2 / (9 * (m - 1))) ** 3
+
+    def real_factor(vals, covs, width):
+        if vals.shape[1] == 0:
+            return np.ones(width)
+        e = vals.var(axis=0, ddof=1)
+        p = np.mean([np.einsum("kvv->kv", c) for c in covs], axis=0)
+        return np.maximum(np.median(e / np.maximum(p, 1e-300), axis=0) / med1, 1.0)
+    fac_win = real_factor(np.array([f.win for f in fs]), [f.cov_win for f in fs], nv)
+    fac_band = real_factor(np.array([f.band for f in fs]), [f.cov_band for f in fs], fs[0].band.shape[-1])
+    return fac, fac_dc, fac_win, fac_band
 
 
 def _line_components(frame: Frame, x: np.ndarray, lines_hz) -> np.ndarray:
@@ -311,7 +543,8 @@ def _desync(frame: Frame, x: np.ndarray) -> np.ndarray:
     return (r - r.mean(axis=0)).ravel()
 
 
-def features(layout: Layout, ch: dict, floor=None, factors: tuple | None = None, noise: bool = True) -> Features:
+def features(layout: Layout, ch: dict, floor=None, factors: tuple | None = None, noise: bool = True,
+             runs: list | None = None) -> Features:
     """Features of the views ``ch`` (whole-record arrays) over ``layout``.
 
     ``floor`` (per view of ``layout.views``, in the view's unit) is the smallest white noise
@@ -320,16 +553,34 @@ def features(layout: Layout, ch: dict, floor=None, factors: tuple | None = None,
     ``factors`` (``(bins, dc)`` per view) replace the period-to-period factors of a periodic
     frame (e.g. those of a longer segment of the same record). ``noise=False`` computes the
     values only (covariances empty): what a fit's replays need, whose whitener is fixed.
+    ``runs`` (view dicts of the replays whose mean ``ch`` is): the ``band`` features are those
+    of their mean density (the density of a mean of replays holds a fraction of their noise).
     """
     fr = layout.frame
     seg = slice(fr.i0, fr.i0 + fr.n)
     x = _stack(layout, ch, seg)
     fl2 = np.zeros(len(layout.views)) if floor is None else np.asarray(floor, float) ** 2
+    xs = [_stack(layout, r, seg) for r in runs] if runs else [x]
     if not noise:
-        return _values(layout, x, seg)
-    if fr.periodic:
-        return _periodic(layout, x, fl2, factors)
-    return _welch(layout, x, seg, fl2)
+        f = _values(layout, x, seg)
+    elif fr.periodic:
+        f = _periodic(layout, x, fl2, factors)
+    else:
+        f = _welch(layout, x, seg, fl2)
+    import dataclasses
+
+    extra = {}
+    if layout.n_win:
+        extra["win"] = _win_values(layout, x)
+        if noise:
+            extra["cov_win"] = np.repeat(_low_noise(layout, x, seg)[None] / layout.win_len, layout.n_win - 1, axis=0) \
+                + np.diag(fl2 / layout.win_len)[None]
+    if layout.bands:
+        vals, cov = _band_values(layout, xs, noise)
+        extra["band"] = vals
+        if noise:
+            extra["cov_band"] = cov
+    return dataclasses.replace(f, **extra) if extra else f
 
 
 def _values(layout: Layout, x: np.ndarray, seg: slice) -> Features:
@@ -341,13 +592,44 @@ def _values(layout: Layout, x: np.ndarray, seg: slice) -> Features:
         lines = line_phasors(fr, x, layout.lines_hz, X)
         return Features(np.real(X[:, 0]), X[:, layout.bins].T, lines, empty, empty, empty)
     lines = line_phasors(fr, x, layout.lines_hz)
+    return Features(x.sum(axis=1), _cross_spectra(layout, x, seg)[0], lines, empty, empty, empty)
+
+
+def _cross_spectra(layout: Layout, x: np.ndarray, seg: slice) -> tuple:
+    """Welch cross-spectra of the views with each excited axis at the layout's bins, ``(F (A, K, V),
+    Y (segments, V, K), Sa (segments, A, K))``."""
     nper, kb = layout.nperseg, layout.bins
     if not layout.axes:                   # nothing excited (levitation at rest): no cross-spectra
         return Features(x.sum(axis=1), np.zeros((0, len(kb), x.shape[0]), complex), lines, empty, empty, empty)
     Y = _welch_segments(x, nper)[:, :, kb]
+    if not layout.axes:
+        return np.zeros((0, len(kb), x.shape[0]), complex), Y, np.zeros((Y.shape[0], 0, len(kb)), complex)
     Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
-    F = np.einsum("svk,sak->akv", Y, Sa.conj()) / Y.shape[0]
-    return Features(x.sum(axis=1), F, lines, empty, empty, empty)
+    return np.einsum("svk,sak->akv", Y, Sa.conj()) / Y.shape[0], Y, Sa
+
+
+def _low_noise(layout: Layout, x: np.ndarray, seg: slice, bins=(1, 2, 3)) -> np.ndarray:
+    r"""Low-frequency noise of the views, :math:`G = f_s S(0^+)/2` (V x V: a sum of :math:`L`
+    samples has covariance :math:`L G`), from the lowest Welch bins with what the excitations
+    drive there regressed out across segments (nothing to regress when nothing is excited)."""
+    nper = layout.nperseg or _welch_length(layout.frame.n)
+    Yall = _welch_segments(x, nper)
+    kb = [k for k in bins if k < Yall.shape[2]]
+    axes = [a for a in layout.axes if np.ptp(layout.signals[a][seg]) > 0]
+    Sall = [_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, :] for a in axes]
+    n_seg = Yall.shape[0]
+    G = np.zeros((x.shape[0], x.shape[0]))
+    for k in kb:
+        Y = Yall[:, :, k]
+        if axes and n_seg > len(axes) + 1:
+            A = np.stack([s[:, k] for s in Sall], axis=1)
+            coef, *_ = np.linalg.lstsq(A, Y, rcond=None)
+            R = Y - A @ coef
+            G += np.real(R.T @ R.conj()) / (n_seg - len(axes))
+        else:
+            G += np.real(Y.T @ Y.conj()) / n_seg
+    w2 = float(np.sum(signal.windows.hann(nper, sym=False) ** 2))
+    return G / max(len(kb), 1) / w2
 
 
 def _periodic(layout: Layout, x: np.ndarray, fl2: np.ndarray, factors: tuple | None) -> Features:
@@ -367,7 +649,7 @@ def _periodic(layout: Layout, x: np.ndarray, fl2: np.ndarray, factors: tuple | N
                  cov_lines=(C[kl] if kl else np.zeros((0,) + C.shape[1:])) + np.diag(fr.n * fl2)[None])
     if factors is None:
         factors = _period_factors(layout, x, np.real(np.einsum("kvv->kv", f.cov_bins)), np.diag(f.cov_dc))
-    return scale_views(f, *factors)
+    return scale_views(f, *factors[:2])
 
 
 def _welch_segments(x: np.ndarray, nper: int) -> np.ndarray:
@@ -381,31 +663,23 @@ def _welch_segments(x: np.ndarray, nper: int) -> np.ndarray:
 
 def _welch(layout: Layout, x: np.ndarray, seg: slice, fl2: np.ndarray) -> Features:
     fr, nper, kb = layout.frame, layout.nperseg, layout.bins
-    nv = x.shape[0]
-    if layout.axes:
-        Y = _welch_segments(x, nper)[:, :, kb]                        # S x V x K
-        Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
-        n_seg = Y.shape[0]
-        k_eff = max(1.0, n_seg / 1.06)                                # Hann, 50 % overlap
-        F = np.einsum("svk,sak->akv", Y, Sa.conj()) / n_seg           # A x K x V
-        # per bin, the noise: residual of the regression of Y on the excitations across segments
-        Cn = np.zeros((len(kb), nv, nv), complex)
-        for j in range(len(kb)):
-            A = Sa[:, :, j]
-            coef, *_ = np.linalg.lstsq(A, Y[:, :, j], rcond=None)
-            R = Y[:, :, j] - A @ coef
-            Cn[j] = R.T @ R.conj() / max(n_seg - A.shape[1], 1)
-        Cn = _smooth_cov(Cn) + np.diag(fl2 * np.sum(signal.windows.hann(nper, sym=False) ** 2))[None]
-        s2 = np.mean(np.abs(Sa) ** 2, axis=0)                         # A x K
-        cov = Cn[None] * (s2[:, :, None, None] / k_eff)
-    else:                                 # nothing excited (levitation at rest): no cross-spectra
-        F = np.zeros((0, len(kb), nv), complex)
-        cov = np.zeros((0, len(kb), nv, nv), complex)
-    x0 = x - x.mean(axis=1, keepdims=True)
-    f, P = signal.csd(x0[:, None, :], x0[None, :, :], fs=fr.fs_hz, nperseg=nper, noverlap=nper // 2, window="hann",
-                      detrend="constant", axis=-1)
-    # variance of a sum of n samples ~ n fs S(0+)/2 (one-sided PSD at the lowest bins)
-    cov_dc = np.real(np.mean(P[:, :, 1:4], axis=-1)) * fr.n * fr.fs_hz / 2.0 + np.diag(fr.n * fl2)
+    # nothing excited (levitation at rest): no cross-spectra, A = 0
+    F, Y, Sa = _cross_spectra(layout, x, seg)                         # A x K x V; S x V x K; S x A x K
+    n_seg = Y.shape[0]
+    k_eff = max(1.0, n_seg / 1.06)                                    # Hann, 50 % overlap
+    # per bin, the noise: residual of the regression of Y on the excitations across segments
+    Cn = np.zeros((len(kb), x.shape[0], x.shape[0]), complex)
+    for j in range(len(kb)):
+        A = Sa[:, :, j]
+        coef, *_ = np.linalg.lstsq(A, Y[:, :, j], rcond=None)
+        R = Y[:, :, j] - A @ coef
+        Cn[j] = R.T @ R.conj() / max(n_seg - A.shape[1], 1)
+    Cn = _smooth_cov(Cn) + np.diag(fl2 * np.sum(signal.windows.hann(nper, sym=False) ** 2))[None]
+    s2 = np.mean(np.abs(Sa) ** 2, axis=0)                             # A x K
+    cov = Cn[None] * (s2[:, :, None, None] / k_eff)
+    # variance of a sum of n samples ~ n fs S(0+)/2 (one-sided PSD at the lowest bins, without
+    # what the excitation drives there)
+    cov_dc = _low_noise(layout, x, seg) * fr.n + np.diag(fr.n * fl2)
     lines = line_phasors(fr, x, layout.lines_hz)
     if layout.lines_hz:
         Xf = sfft.rfft(x * fr.window, axis=1)
@@ -444,14 +718,17 @@ class Whitener:
     normalised covariance (views whose noise is nearly collinear would otherwise give one
     direction an enormous weight).
 
-    The vector is ``[dc (V), Re/Im of bins (2 x K x V), Re/Im of lines (2 x L x V)]``, with the
-    complex parts scaled by :math:`\sqrt 2` (each has half the variance).
+    The vector is ``[dc (V), Re/Im of bins (2 x K x V), Re/Im of lines (2 x L x V), win ((W-1) x
+    V), band (B x Vb)]``, with the complex parts scaled by :math:`\sqrt 2` (each has half the
+    variance).
     """
 
     W_dc: np.ndarray
     W_bins: np.ndarray
     W_lines: np.ndarray
     labels: list
+    W_win: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    W_band: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
 
     @classmethod
     def build(cls, layout: Layout, fa: Features, fb: Features | None = None, ridge: float = 1e-3) -> "Whitener":
@@ -465,7 +742,11 @@ class Whitener:
         W_bins = np.array([_whitening(c, ridge) for c in cb.reshape((-1,) + cb.shape[-2:])]).reshape(cb.shape)
         cl = tot(fa.cov_lines, None if fb is None else fb.cov_lines)
         W_lines = np.array([_whitening(c, ridge) for c in cl]).reshape(cl.shape)
-        return cls(W_dc, W_bins, W_lines, _labels(layout, cb.shape))
+        cw = tot(fa.cov_win, None if fb is None else fb.cov_win)
+        W_win = np.array([_whitening(c, ridge) for c in cw]).reshape(cw.shape)
+        cd = tot(fa.cov_band, None if fb is None else fb.cov_band)
+        W_band = np.array([_whitening(c, ridge) for c in cd]).reshape(cd.shape)
+        return cls(W_dc, W_bins, W_lines, _labels(layout, cb.shape), W_win, W_band)
 
     def residual(self, fa: Features, fb: Features) -> np.ndarray:
         """Whitened ``fa - fb`` (see class docstring)."""
@@ -476,12 +757,17 @@ class Whitener:
         if len(self.W_lines):
             wl = np.einsum("lij,lj->li", self.W_lines, fa.lines - fb.lines).ravel()
             out += [math.sqrt(2) * wl.real, math.sqrt(2) * wl.imag]
+        if len(self.W_win):
+            out.append(np.real(np.einsum("kij,kj->ki", self.W_win, fa.win - fb.win)).ravel())
+        if len(self.W_band):
+            out.append(np.real(np.einsum("kij,kj->ki", self.W_band, fa.band - fb.band)).ravel())
         return np.concatenate(out)
 
     def groups(self) -> dict:
-        """Index arrays of the vector per group: ``dc``, ``bins``, ``lines`` and per view."""
+        """Index arrays of the vector per group: ``dc``, ``bins``, ``lines``, ``win``, ``band`` and
+        per view."""
         lab = self.labels
-        out = {"dc": [], "bins": [], "lines": []}
+        out = {"dc": [], "bins": [], "lines": [], "win": [], "band": []}
         for i, (g, v, _f) in enumerate(lab):
             out[g].append(i)
             out.setdefault("view:" + v, []).append(i)
@@ -489,7 +775,7 @@ class Whitener:
 
 
 def _labels(layout: Layout, bins_shape) -> list:
-    """``(group, view, frequency)`` of every entry of the whitened vector."""
+    """``(group, view, frequency or time)`` of every entry of the whitened vector."""
     views = layout.views
     lab = [("dc", v, 0.0) for v in views]
     f = layout.f_bins_hz
@@ -504,4 +790,6 @@ def _labels(layout: Layout, bins_shape) -> list:
         lab += [("bins", v, float(fk)) for fk, v in per]
     for part in (0, 1):
         lab += [("lines", v, float(fl)) for fl in layout.lines_hz for v in views]
+    lab += [("win", v, float(j)) for j in range(1, layout.n_win) for v in views]
+    lab += [("band", v, float(fb)) for fb in layout.f_bands_hz for v in layout.band_views]
     return lab

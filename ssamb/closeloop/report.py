@@ -11,7 +11,9 @@ estimate, tolerance and verdict, the sensitivity matrix's rank, condition and id
 combinations, the error the calibration alone removes); ``remaining_signature`` (what is left
 when the residual is not consistent with noise), ``evidence`` (the ranking before any fitting),
 ``rounds`` (every candidate tried and why it was accepted or rejected), ``noise``, ``data``,
-``timing``.
+``timing``, ``misfit`` (the final model's held-out chi-square per entry against the noise, per
+view and in all; a note when it stays far above) and ``optimum`` (how the final model is known to
+be a local optimum of the joint problem).
 
 The errors are time-domain errors of the **predictions** (the mean of the replays:
 :meth:`ssamb.closeloop.comparison.Comparison.prediction`), so a residual at the noise is the
@@ -128,6 +130,26 @@ def _dropped_note(d: dict) -> str:
             f"({values}; Wald chi2 {d['size_chi2']:.3g} on {d['k']}): not a finding, left out of the final model")
 
 
+def _misfit_notes(mis: dict, opt: dict, far: float = 2.0) -> list:
+    """Notes when the final model's held-out misfit stays far above the noise (``far`` times the
+    chi-square per entry the noise gives, in a view or in all) and when the joint refit did not
+    converge."""
+    out = []
+    if mis and mis.get("ratio", 0.0) > far:
+        worst = sorted(mis["views"].items(), key=lambda kv: -kv[1]["ratio"])
+        views = ", ".join(f"{v} {d['ratio']:.3g}" for v, d in worst if d["ratio"] > far)
+        out.append(f"the final model's held-out misfit stays {mis['ratio']:.3g} times the noise (chi-square per entry; "
+                   f"1 at the noise; per view: {views})")
+    elif mis:
+        views = [f"{v} {d['ratio']:.3g}" for v, d in mis["views"].items() if d["ratio"] > far]
+        if views:
+            out.append(f"the final model's held-out misfit stays far above the noise in {', '.join(views)} "
+                       "(chi-square per entry; 1 at the noise)")
+    if opt and not opt.get("converged", True):
+        out.append(opt["how"])
+    return out
+
+
 def _summary(effects, unexplained, params) -> str:
     cal = (f"calibrated {len(params)} nominal parameter{'s' if len(params) != 1 else ''}"
            if params else "no nominal parameter identified")
@@ -186,7 +208,10 @@ def build_report(rec, split, search, settings, source: str, timing: dict) -> dic
         "timing": timing,
         "settings": {k: getattr(settings, k) for k in settings.__dataclass_fields__},
     }
-    rep["notes"] = _notes(rec, effects, cal_block, not_ident) + [_dropped_note(d) for d in search.dropped]
+    rep["misfit"] = search.misfit
+    rep["optimum"] = search.optimum
+    rep["notes"] = (_notes(rec, effects, cal_block, not_ident) + [_dropped_note(d) for d in search.dropped]
+                    + _misfit_notes(search.misfit, search.optimum))
     rep["summary"] = _summary(effects, rep["unexplained"], params)
     return plain(rep)
 

@@ -26,6 +26,17 @@ part), into the evidence the effect signatures read:
   the excited lines);
 * **ripple distortion**: residual of the coil currents on the periodic grid above
   ``ripple_min_hz`` (where the excitation puts nothing but the PWM sampling pattern);
+* **windows**: the residual's means over consecutive windows (whole periods of a periodic
+  excitation, else the Welch hop of :func:`ssamb.closeloop.features.make_layout`), each with the
+  standard error its length gives at the low-frequency noise floor (that of the offsets):
+  :math:`\mathrm{SE}_w^2 = S(0^+)/(W_2 L)`; ``chi2`` of the windows about zero and
+  ``chi2_trend`` about their weighted mean (slow trends: a response to a slowly varying
+  reference the model misses, a drift);
+* **bands** (the device's band views): :math:`\ln(\hat P_{meas}/\hat P_{model})` per band of
+  Welch bins without excitation power (:func:`ssamb.closeloop.features.band_plan`), the modelled
+  density the mean over the replays' densities, each log bias-corrected for its degrees of
+  freedom, with the standard error :math:`\sqrt{\psi'(\nu/2) + \psi'(m\nu/2)}` (the loop's
+  response to its own noise).
 """
 from __future__ import annotations
 
@@ -59,6 +70,8 @@ class Features:
     device: dict = field(default_factory=dict)
     floor: dict = field(default_factory=dict)
     excited_f_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    windows: dict = field(default_factory=dict)
+    bands: dict = field(default_factory=dict)
 
 
 def _floor(view: str, model_seg: np.ndarray, settings, dev) -> float:
@@ -398,16 +411,43 @@ def _ripple(frame: Frame, X: dict, Sl: dict, settings, views: tuple) -> dict:
     return out
 
 
-def _device_lines(frame: Frame, X: dict, Sl: dict, lines_hz, views: tuple) -> dict:
-    """Residual chi-square of the coil-current views at the device's own lines (the PWM carrier's
-    aliased harmonics, on the grid of a periodic frame): the ripple's shape, which a dead time
-    changes and the bias current does not."""
-    kb = [int(round(f / frame.df_hz)) for f in lines_hz
-          if abs(f / frame.df_hz - round(f / frame.df_hz)) < 1e-6 and round(f / frame.df_hz) < len(frame.f_hz)]
+def _device_lines(frame: Frame, X: dict, Sl: dict, lines_hz, views: tuple, res_v: dict | None = None,
+                  fl: dict | None = None) -> dict:
+    r"""Residual chi-square of the coil-current views at the device's own lines (the PWM carrier's
+    aliased harmonics): the ripple's shape, which a dead time changes and the bias current does not.
+
+    A periodic frame reads them on its grid (the DFT bins). Another frame fits each line's phasor
+    by least squares at its exact frequency (:func:`ssamb.closeloop.features.line_phasors`, the
+    segment's mean removed) and weighs it with the noise floor of the Hann-tapered DFT there:
+    a phasor :math:`A` of a rectangular :math:`n`-sample fit has variance :math:`S(k)\,n/W_2` (and
+    the model's reproducibility floor as a line, :math:`(f_l n/2)^2`); :math:`|A|^2` over it is
+    exponential under noise alone, as a periodic frame's bin.
+    """
     out = {}
-    for v in views:
-        chi = float(np.sum(np.abs(X[v][kb]) ** 2 / Sl[v][kb])) if kb else 0.0
-        out[v] = {"chi2": chi, "k": len(kb), "logp": float(stats.chi2.logsf(2 * chi, 2 * len(kb))) if kb else 0.0}
+    if frame.periodic:
+        kb = [int(round(f / frame.df_hz)) for f in lines_hz
+              if abs(f / frame.df_hz - round(f / frame.df_hz)) < 1e-6 and round(f / frame.df_hz) < len(frame.f_hz)]
+        for v in views:
+            chi = float(np.sum(np.abs(X[v][kb]) ** 2 / Sl[v][kb])) if kb else 0.0
+            out[v] = {"chi2": chi, "k": len(kb), "logp": float(stats.chi2.logsf(2 * chi, 2 * len(kb))) if kb else 0.0}
+        return out
+    from .features import line_phasors
+
+    fs = [float(f) for f in lines_hz if 0 < f < frame.fs_hz / 2 - 2 * frame.df_hz]
+    if res_v is None or not fs:
+        return {v: {"chi2": 0.0, "k": 0, "logp": 0.0} for v in views}
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    x = np.stack([np.asarray(res_v[v], float)[seg] for v in views])
+    A = line_phasors(frame, x, fs)                       # lines x views
+    kb = [min(int(round(f / frame.df_hz)), len(frame.f_hz) - 1) for f in fs]
+    for j, v in enumerate(views):
+        S = np.array([float(Sl[v][k]) for k in kb])
+        # Sl holds the Hann DFT's floor plus the reproducibility floor as a Hann line, (fl sum w / 2)^2;
+        # the rectangular fit's variance: the floor's noise part scaled by n / W2, the line part as (fl n / 2)^2
+        line = ((fl or {}).get(v, 0.0) * float(np.sum(frame.window)) / 2.0) ** 2
+        var = np.maximum(S - line, 0.0) * frame.n / frame.w2 + ((fl or {}).get(v, 0.0) * frame.n / 2.0) ** 2
+        chi = float(np.sum(np.abs(A[:, j]) ** 2 / np.maximum(var, 1e-300)))
+        out[v] = {"chi2": chi, "k": len(fs), "logp": float(stats.chi2.logsf(2 * chi, 2 * len(fs)))}
     return out
 
 
@@ -419,9 +459,73 @@ def channel_noise(frame: Frame, meas_ch: dict, model_ch: dict, settings, dev) ->
             for c in dev.channels}
 
 
-def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, lines: bool = True) -> Features:
+def _windows(frame: Frame, res_v: dict, S: dict, fl: dict, views) -> dict:
+    """The residual's window means (module docstring): whole periods of a periodic frame (at least
+    three), else the Welch hop of the frame's layout."""
+    from .features import _welch_length
+
+    if frame.periodic:
+        L = frame.n_period
+    else:
+        L = max(_welch_length(frame.n) // 2, 1)
+    W = frame.n // L
+    if W < 3:
+        return {}
+    L = frame.n // W
+    t = (frame.i0 + (np.arange(W) + 0.5) * L) / frame.fs_hz
+    out = {}
+    for v in views:
+        seg = res_v[v][frame.i0:frame.i0 + W * L]
+        mean = seg.reshape(W, L).mean(axis=1)
+        se = math.hypot(math.sqrt(max(S[v][1], 0.0) / (frame.w2 * L)) if len(S[v]) > 1 else 0.0, fl[v])
+        z = mean / se if se > 0 else np.zeros(W)
+        out[v] = {"t_s": t, "mean": mean, "se": np.full(W, se), "chi2": float(np.sum(z ** 2)), "k": W,
+                  "chi2_trend": float(np.sum((z - z.mean()) ** 2)), "window_s": L / frame.fs_hz}
+    return out
+
+
+def _bands(rec, frame: Frame, meas_v: dict, model_v: dict, model_runs, fl: dict) -> dict:
+    """ln of the measured over the modelled density in bands, per band view (module docstring)."""
+    from .features import Layout, _band_spectra, _welch_length, band_dof, band_plan, log_bias, log_var
+
+    views = tuple(getattr(rec.device.features, "band_views", ()) or ())
+    if not views:
+        return {}
+    nper = _welch_length(frame.n)
+    bands = band_plan(frame, rec.signal, nper, getattr(rec, "device_lines_hz", ()))
+    if not bands:
+        return {}
+    lay = Layout(frame, np.zeros(0, int), (), 0, (), views, band_views=views, bands=tuple(bands), band_nper=nper,
+                 band_floor=tuple(2.0 * fl[v] ** 2 / frame.fs_hz for v in views))
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    runs = model_runs or [model_v]
+    xm = [np.stack([np.asarray(meas_v[v], float)[seg] for v in views])]
+    xh = [np.stack([np.asarray(r[v], float)[seg] for v in views]) for r in runs]
+    (Cm, scale, n_seg), (Ch, _, _) = _band_spectra(lay, xm), _band_spectra(lay, xh)
+    sizes = np.array([len(b) for b in bands], float)
+    floor = np.asarray(lay.band_floor, float)
+    Pm = np.real(np.einsum("bvv->bv", Cm)) * scale / sizes[:, None] + floor
+    Ph = np.real(np.einsum("bvv->bv", Ch)) * scale / sizes[:, None] + floor
+    nu = np.array([band_dof(b, n_seg) for b in bands])
+    m = len(runs)
+    lr = (np.log(Pm) - np.array([log_bias(x) for x in nu])[:, None]) - \
+        (np.log(Ph) - np.array([log_bias(m * x) for x in nu])[:, None])
+    se = np.sqrt(np.array([log_var(x) + log_var(m * x) for x in nu]))
+    f = np.array([float(np.mean(b)) * frame.fs_hz / nper for b in bands])
+    out = {}
+    for j, v in enumerate(views):
+        z = lr[:, j] / se
+        out[v] = {"f_hz": f, "log_ratio": lr[:, j], "se": se, "chi2": float(np.sum(z ** 2)), "k": len(bands),
+                  "dof": nu, "replays": m}
+    return out
+
+
+def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, lines: bool = True,
+                     model_runs: list | None = None) -> Features:
     """Evidence of the residual ``meas_v - model_v`` (views, whole-record arrays) over ``frame``
-    (module docstring)."""
+    (module docstring). ``model_runs`` (the view dicts of the replays whose mean ``model_v`` is)
+    give the modelled densities of the ``bands``; without them ``model_v`` counts as one
+    replay."""
     dev = rec.device
     vn = dev.view_names
     res_v, fl, X, Xm, Xh, S = _spectra_of(frame, meas_v, model_v, settings, dev)
@@ -441,6 +545,8 @@ def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, l
         mu, se = offset(frame, res_v[v], S[v])
         se = math.hypot(se, fl[v])
         ft.offsets[v] = {"mean": mu, "se": se, "z": mu / se if se > 0 else 0.0}
+    ft.windows = _windows(frame, res_v, S, fl, vn)
+    ft.bands = _bands(rec, frame, meas_v, model_v, model_runs, fl)
     exd = _excited_data(rec, frame, meas_v, model_v, Sl, X, Xm, Xh, fl)
     ft.excited_f_hz = np.unique(np.concatenate([d["f_hz"] for d in exd.values()])) if exd else np.zeros(0)
     ft.excited_residual = _excited_residual(exd, vn)
@@ -448,8 +554,8 @@ def compute_features(rec, frame: Frame, meas_v: dict, model_v: dict, settings, l
         ft.lines.extend(_isolated_excited_lines(frame, X, Sl, exd, settings.alpha_evidence, dev,
                                                  settings.line_isolation))
     _paths(ft, exd, settings, dev)
+    rv = dev.features.ripple_views
     if frame.periodic:
-        rv = dev.features.ripple_views
         ft.ripple = _ripple(frame, X, Sl, settings, rv) if rv else {}
-        ft.device = _device_lines(frame, X, Sl, getattr(rec, "device_lines_hz", ()), rv) if rv else {}
+    ft.device = _device_lines(frame, X, Sl, getattr(rec, "device_lines_hz", ()), rv, res_v, fl) if rv else {}
     return ft

@@ -75,6 +75,11 @@ class SearchResult:
     dropped : list of dict
         Effects accepted in a round whose size the joint refit found consistent with zero (not
         in the final model): name, round, Wald statistic, values and standard errors.
+    misfit : dict
+        The final model's held-out misfit against the noise (:func:`misfit`).
+    optimum : dict
+        How the final model is known to be a local optimum of the joint problem
+        (:func:`optimum_of`).
     """
 
     calibration: Calibration = None
@@ -91,6 +96,8 @@ class SearchResult:
     final_features: object = None
     nominal_features: object = None
     dropped: list = field(default_factory=list)
+    misfit: dict = field(default_factory=dict)
+    optimum: dict = field(default_factory=dict)
 
 
 def _log(progress: bool, msg: str) -> None:
@@ -99,12 +106,20 @@ def _log(progress: bool, msg: str) -> None:
         sys.stderr.flush()
 
 
+def _features(cmp: Comparison, frame, pred: dict, settings):
+    """The residual features of a prediction over ``frame`` (its replays' views for the bands)."""
+    v = cmp.device.views
+    runs = [v(r) for r in pred["runs"]] if pred.get("runs") else None
+    return compute_features(cmp.record, frame, v(cmp.record.channels), v(pred), settings, model_runs=runs)
+
+
 def consistency(cmp: Comparison, base: Base, settings) -> tuple[bool, list]:
     """Is the held-out residual of ``base`` consistent with noise? ``(ok, failures)``.
 
     Three families at level ``alpha_noise / 3`` each (Bonferroni inside): the DC entries of the
     views (offsets, :math:`|z|`), the per-view :math:`\\chi^2` of the excited lines and line
-    features, and lines the excitation lacks found in the held-out residual
+    features (and of the windows and the bands, where the comparison has them), and lines the
+    excitation lacks found in the held-out residual
     (:func:`ssamb.closeloop.residual.compute_features`). The whitened residual is rescaled by the
     noise the prediction's replicates show.
     """
@@ -119,19 +134,48 @@ def consistency(cmp: Comparison, base: Base, settings) -> tuple[bool, list]:
     for v, z in zip(part.layout.views, dc):
         if abs(z) > zc:
             fails.append({"test": "offset", "view": v, "z": float(z)})
-    dc_idx = set(groups["dc"].tolist())
+    # per view: the excited lines and line features, the windows (slow trends) and the bands
+    # (log densities), each a chi-square test, Bonferroni over the tests that have entries
+    kinds = {"residual_at_excited_lines": None, "windows": "win", "bands": "band"}
+    special = {k: set(groups[k].tolist()) for k in ("dc", "win", "band")}
+    tests = []
     for v in part.layout.views:
-        g = [i for i in groups["view:" + v] if i not in dc_idx]
+        idx = groups["view:" + v]
+        for test, key in kinds.items():
+            if key is None:
+                g = [i for i in idx if i not in special["dc"] | special["win"] | special["band"]]
+            else:
+                g = [i for i in idx if i in special[key]]
+            if g or key is None:
+                tests.append((test, v, g))
+    for test, v, g in tests:
         x = float(np.sum(r[g] ** 2))
         p = float(stats.chi2.sf(x, len(g))) if g else 1.0
-        if p < fam / len(part.layout.views):
-            fails.append({"test": "residual_at_excited_lines", "view": v, "chi2": x, "k": len(g), "p": p})
-    v = cmp.device.views
-    ft = compute_features(cmp.record, part.frame, v(cmp.record.channels), v(base.pred), settings)
+        if p < fam / len(tests):
+            fails.append({"test": test, "view": v, "chi2": x, "k": len(g), "p": p})
+    ft = _features(cmp, part.frame, base.pred, settings)
     for ln in ft.lines:
         fails.append({"test": "line_not_excited", "f_hz": ln["f_hz"], "views": ln["views_detected"],
                       "amplitude": {v: abs(a) for v, a in ln["phasor"].items()}})
     return (not fails), fails
+
+
+def misfit(cmp: Comparison, base: Base) -> dict:
+    """The held-out misfit of ``base`` against the noise: per view (and in all) the chi-square of
+    its whitened residual, rescaled by the noise its replicates show, over the number of entries
+    (1 at the noise), with the one-sided p-value of the chi-square."""
+    part = cmp.hold
+    r = cmp.residual(part, base.pred) / np.sqrt(cmp.noise_factors(part, base.overrides, base.effects))
+    g = part.whitener.groups()
+    out = {"views": {}}
+    for v in part.layout.views:
+        idx = g.get("view:" + v, np.zeros(0, int))
+        x = float(np.sum(r[idx] ** 2))
+        out["views"][v] = {"chi2": x, "n": len(idx), "ratio": x / max(len(idx), 1),
+                           "log10_p": float(stats.chi2.logsf(x, len(idx))) / np.log(10.0) if len(idx) else 0.0}
+    x = float(r @ r)
+    out.update(chi2=x, n=len(r), ratio=x / max(len(r), 1), log10_p=float(stats.chi2.logsf(x, len(r))) / np.log(10.0))
+    return out
 
 
 def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings, measured_contact: bool) -> None:
@@ -151,8 +195,7 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
         cand.reasons.append(f"makes {', '.join(hs['views_worse'])} worse")
     if hs["delta_bic"] >= 0:
         cand.reasons.append(f"BIC does not drop ({hs['delta_bic']:.1f})")
-    v = cmp.device.views
-    ft_after = compute_features(cmp.record, cmp.fit.frame, v(cmp.record.channels), v(cand.pred), settings)
+    ft_after = _features(cmp, cmp.fit.frame, cand.pred, settings)
     claim_crit = float(stats.chi2.isf(settings.alpha_evidence, 2))
     cand.score["claims"] = {}
     for n in cand.names:
@@ -212,7 +255,7 @@ def _entry(cand: Candidate, rnd: int, repolish: bool = False) -> dict:
 def _round(cmp, base, settings, rnd, rejected):
     """One round: evidence, candidates fitted and judged. Returns ``(info, best or None, ft, ev)``."""
     rec = cmp.record
-    ft = compute_features(rec, cmp.fit.frame, cmp.device.views(rec.channels), cmp.device.views(base.pred), settings)
+    ft = _features(cmp, cmp.fit.frame, base.pred, settings)
     ev = evidence_all(ft, settings, cmp.device)
     taken = {e["name"] for e in base.effects}
     order = [n for n in rank(ev) if n not in taken and rejected.get(n, 0) < 2]
@@ -437,7 +480,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     init = cmp.device.initial_estimate(rec, cmp.replay.cfg) if specs else {}
     start = np.array([sp.theta_of(init[sp.key]) if sp.key in init else 0.0 for sp in specs]) if init else None
     cal = calibrate_model(cmp, specs, [], est, settings.identifiable_ratio, settings.conflict_z, start=start,
-                          log=(lambda m: _log(progress, "  calibration " + m)) if progress else None)
+                          log=(lambda m: _log(progress, "  calibration " + m)) if progress else None,
+                          step_rel=settings.calibration_step_rel)
     out.calibration = cal
     _log(progress, f"calibration: {sum(d['identified'] for d in cal.ident['per_parameter'].values())} of {len(specs)} "
                    f"parameters identified; conflicts {cal.conflicts or 'none'} ({time.perf_counter() - t0:.1f} s)")
@@ -471,4 +515,24 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     for a in out.accepted:
         sig = (np.abs(a["theta"]) > 3 * a["se"]) & (np.abs(a["theta"]) > 1e-3 * a["model"].step)
         a["entries"] = cmp.device.report_entries(a["model"], a["theta"], a["se"], sig)
+    out.misfit = misfit(cmp, Base(out.overrides, out.effects, out.final))
+    out.optimum = optimum_of(out.joint.get("fit"), EstimateSettings(**settings.estimate).tol)
     return out
+
+
+def optimum_of(fit, tol: float) -> dict:
+    """How the final model is known to be a local optimum of the joint problem (parameters and
+    effects): the estimator stopped because its last Gauss-Newton step on the surrogate, in the
+    posterior metric, was within ``tol`` posterior standard deviations per parameter (a step the
+    data cannot tell from no step), not because its iterations ran out."""
+    if fit is None:
+        return {"converged": True, "how": "nothing was fitted"}
+    steps = [h["step_norm"] for h in fit.history if "step_norm" in h]
+    last = steps[-1] if steps else 0.0
+    how = (f"the joint refit converged: its last Gauss-Newton step was {last:.2g} posterior standard deviations "
+           f"per parameter (stop at {tol:g}) after {fit.iterations} iterations"
+           if fit.converged else
+           f"the joint refit did NOT converge: its iterations ran out with a step of {last:.2g} posterior standard "
+           f"deviations per parameter (stop at {tol:g}); the step is added to the reported covariance")
+    return {"converged": bool(fit.converged), "last_step_posterior_sd": float(last), "tolerance": float(tol),
+            "iterations": int(fit.iterations), "simulations": int(fit.evaluations), "how": how}

@@ -1,0 +1,266 @@
+"""Features that work on any record: windows (slow trends) and bands (log power spectral densities)
+with their noise, on records without a periodic excitation or without any excitation at all."""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from ssamb.closeloop.features import (Whitener, band_dof, band_plan, features, log_bias, log_var, make_layout,
+                                      replicate_factors, scale_views)
+from ssamb.closeloop.spectra import make_frame
+from ssamb.device import Device, EffectModel, FeatureSpec, Record, Replay, log10_p_two_sided
+
+FS = 1000.0
+
+
+def _ar1(rng, n, a=0.9, s=1.0):
+    return signal.lfilter([s], [1.0, -a], rng.standard_normal(n))
+
+
+def test_band_dof_matches_the_spread_of_the_log_density():
+    """The log of a band's mean Welch density of white noise scatters with the trigamma of half
+    its degrees of freedom (Hann, half-overlapping segments, adjacent bins correlated), and its
+    mean is the log of the true density plus the digamma bias."""
+    rng = np.random.default_rng(3)
+    n, nper = 4096, 256
+    fr = make_frame(FS, 0, n, {}, None, None)
+    bands = band_plan(fr, {}, nper)
+    assert len(bands) >= 8 and all(len(b) >= 4 for b in bands)
+    lay = SimpleNamespace(views=("a",), band_views=("a",), band_nper=nper, bands=tuple(bands), frame=fr,
+                          band_floor=(0.0,))
+    from ssamb.closeloop.features import _band_values
+
+    vals = np.array([_band_values(lay, [rng.standard_normal((1, n))], False)[0][:, 0] for _ in range(300)])
+    n_seg = (n - nper) // (nper // 2) + 1
+    nu = np.array([band_dof(b, n_seg) for b in bands])
+    pred = np.array([log_var(x) for x in nu])
+    ratio = vals.var(axis=0, ddof=1) / pred
+    assert 0.8 < np.median(ratio) < 1.2, ratio
+    # white noise of unit variance: one-sided density 2 / fs, the bias already removed
+    assert np.mean(vals) == pytest.approx(math.log(2.0 / FS), abs=0.03)
+    assert log_bias(1e6) == pytest.approx(0.0, abs=1e-5) and log_bias(10.0) < -0.09
+
+
+def test_bands_whitened_difference_has_unit_variance_and_sees_a_louder_loop():
+    """Data and the mean density of 8 replays of the same coloured noise: the whitened band
+    difference has unit variance (coherent views included); data 30 % louder in one view give
+    a chi-square far above its entries there."""
+    rng = np.random.default_rng(5)
+    n = 8192
+    fr = make_frame(FS, 0, n, {}, None, None)
+    lay = make_layout(fr, {}, views=("y", "u"), band_views=("y", "u"))
+    assert lay.bands and lay.n_win >= 3
+
+    def sample(gain=1.0):
+        e = _ar1(rng, n, 0.8)
+        return {"y": e + 0.3 * rng.standard_normal(n), "u": gain * (-2.0 * e + 0.5 * rng.standard_normal(n))}
+    chis = []
+    for gain in (1.0, 1.3):
+        rs = []
+        for _ in range(40):
+            runs = [sample() for _ in range(8)]
+            mean = {v: np.mean([r[v] for r in runs], axis=0) for v in ("y", "u")}
+            d = features(lay, sample(gain))
+            fm = features(lay, mean, runs=runs)
+            W = Whitener.build(lay, d, fm)
+            g = W.groups()
+            rs.append(W.residual(d, fm)[g["band"]])
+        rs = np.array(rs)
+        chis.append(np.mean(rs ** 2))
+    assert 0.75 < chis[0] < 1.3, chis
+    assert chis[1] > 3.0, chis
+
+
+def test_windows_see_a_drift_that_the_dc_does_not():
+    """A ramp of zero mean in the data: the window features' whitened chi-square is far above its
+    entries, while noise alone gives about one per entry."""
+    rng = np.random.default_rng(9)
+    n = 8192
+    fr = make_frame(FS, 0, n, {}, None, None)
+    lay = make_layout(fr, {}, views=("y",))
+    W_ = lay.n_win
+    assert W_ >= 8
+
+    def chi(drift):
+        out = []
+        for _ in range(30):
+            t = np.arange(n) / FS
+            d = features(lay, {"y": _ar1(rng, n, 0.5) + drift * (t - t.mean())})
+            m = features(lay, {"y": _ar1(rng, n, 0.5)})
+            W = Whitener.build(lay, d, m)
+            out.append(np.mean(W.residual(d, m)[W.groups()["win"]] ** 2))
+        return np.mean(out)
+    assert 0.7 < chi(0.0) < 1.4
+    assert chi(0.5) > 5.0
+
+
+def test_replicate_factors_of_windows_and_bands():
+    """Replicates whose window means scatter 4 times the variance each one's own noise estimate
+    gives: factor about 4 for the windows; bands at their own noise: about 1."""
+    rng = np.random.default_rng(2)
+    n = 8192
+    fr = make_frame(FS, 0, n, {}, None, None)
+    lay = make_layout(fr, {}, views=("y",), band_views=("y",))
+    fs = []
+    for _ in range(12):
+        t = np.arange(n)
+        slow = np.repeat(rng.standard_normal(lay.n_win), lay.win_len)
+        slow = np.concatenate([slow, np.zeros(n - len(slow))])
+        x = rng.standard_normal(n) + slow * math.sqrt(3.0 / lay.win_len)
+        fs.append(features(lay, {"y": x}))
+    fac = replicate_factors(fs)
+    assert len(fac) == 4
+    assert 2.5 < fac[2][0] < 6.0, fac
+    assert 0.99 < fac[3][0] < 1.6, fac
+    f2 = scale_views(fs[0], *fac)
+    assert np.allclose(f2.cov_win, fs[0].cov_win * fac[2][0])
+
+
+# -- the engine on a loop driven by its own noise (no excitation) ------------------------------
+def _evidence_drift(ft, alpha, st):
+    w = ft.windows.get("u")
+    if not w:
+        return {"score": 0.0, "log10_p": 0.0, "significant": False, "hints": {}, "details": {}}
+    from scipy import stats
+    lp = float(stats.chi2.logsf(w["chi2_trend"], w["k"] - 1)) / math.log(10.0)
+    sig = lp < math.log10(alpha)
+    return {"score": w["chi2_trend"] if sig else 0.0, "log10_p": lp, "significant": sig, "hints": {},
+            "details": {"chi2_trend": w["chi2_trend"]}}
+
+
+DRIFT = SimpleNamespace(
+    NAME="drift", REQUIRED=("rate_n_per_s",), OPTIONAL=(), SIGNATURE="a ramp of u over the windows", SEARCHABLE=True,
+    NEEDS_HINT=False, validate=lambda p, where: p, evidence=_evidence_drift,
+    claim=lambda ft, hints, df, st: ft.windows.get("u", {}).get("chi2_trend", 0.0),
+    model=lambda hints, rec, st: EffectModel("drift", ("rate_n_per_s",), np.zeros(1), np.full(1, 0.02),
+                                             np.full(1, -5.0), np.full(1, 5.0),
+                                             lambda t: [{"name": "drift", "rate_n_per_s": float(t[0])}], {}),
+    report=lambda m, th, se, sig: [{"name": "drift", "params": {"rate_n_per_s": float(th[0])},
+                                    "uncertainty": {"rate_n_per_s": float(se[0])}}])
+
+
+class NoiseLoop(Device):
+    """A first-order plant under PI control held at a constant reference, driven by a random
+    force; its output spectrum depends on the plant gain (the loop's bandwidth)."""
+
+    name = "noiseloop"
+    channels = ("y", "u")
+    view_names = ("y", "u")
+    cost_views = ("y", "u")
+    units = {"y": "m", "u": "A"}
+    features = FeatureSpec(axis_views={"r": ("y", "u")}, band_views=("y", "u"))
+
+    @property
+    def effects(self):
+        return {"drift": DRIFT}
+
+    def validate(self, arrays, source):
+        pass
+
+    def record(self, arrays, meta, cfg, source):
+        n = len(arrays["y"])
+        r = np.zeros(n)
+        return Record(self, FS, {c: np.asarray(arrays[c], float) for c in self.channels}, {"r": r},
+                      {"kind": "none"}, (), {}, None, None, "levitated", None, usable=((0, n),))
+
+    def priors(self, cfg):
+        return {"plant.b_gain": 0.2}
+
+    def floors(self, settings):
+        return {"y": 1e-9, "u": 1e-9}
+
+    def replay(self, cfg, record, effects, n, seed):
+        rng = np.random.default_rng(1000 + (0 if seed is None else seed))
+        a, b = cfg["plant"]["a"], cfg["plant"]["b_gain"]
+        rate = sum(e["rate_n_per_s"] for e in effects if e["name"] == "drift")
+        w = rng.standard_normal(n)
+        v = 1e-5 * rng.standard_normal(n)
+        y, u = np.zeros(n), np.zeros(n)
+        x, integ = 0.0, 0.0
+        for k in range(n):
+            ym = x + v[k]
+            integ += 0.2 * (-ym) * 1e3
+            u[k] = 800.0 * (-ym) + integ
+            y[k] = ym
+            d = rate * k / FS + 0.2 * w[k]
+            x = a * x + (1 - a) * b * (u[k] + d) * 1e-3
+        return Replay({"y": y, "u": u})
+
+
+CFG = {"plant": {"a": 0.98, "b_gain": 1.0},
+       "closeloop": {"replay_seeds": 6, "discard_s": 0.2, "max_effects": 1, "line_search_max_hz": 400.0,
+                     "calibration_step_rel": 0.2}}
+
+
+def _noise_data(b, effects, seed=77, n=12000):
+    dev = NoiseLoop()
+    cfg = {"plant": {"a": 0.98, "b_gain": b}}
+    rec = dev.record({"y": np.zeros(n), "u": np.zeros(n)}, {}, cfg, "noise")
+    ch = dev.replay(cfg, rec, effects, n, seed).channels
+    return {"fs_hz": FS, "t": np.arange(n) / FS, **ch}
+
+
+@pytest.mark.parametrize("rate", [0.0, 0.4])
+def test_the_engine_on_a_loop_without_excitation(rate):
+    """No excitation at all: the plant gain 25 % off is calibrated from the bands (within 3
+    standard errors, identified), and a slow drift of the force is found from the windows when
+    present, nothing otherwise."""
+    from ssamb.closeloop import analyse
+
+    eff = [{"name": "drift", "rate_n_per_s": rate}] if rate else []
+    rep = analyse(_noise_data(1.25, eff), {}, CFG, device=NoiseLoop())
+    p = rep["parameters"].get("plant.b_gain")
+    assert p is not None, rep["not_identifiable"]
+    assert abs(p["value"] - 1.25) < 3 * p["se"], p
+    assert p["se"] < 0.2 / 3
+    names = [e["name"] for e in rep["effects"]]
+    assert names == (["drift"] if rate else []), rep["summary"]
+    if rate:
+        f = rep["effects"][0]
+        assert abs(f["params"]["rate_n_per_s"] - rate) < 3 * f["uncertainty"]["rate_n_per_s"] + 0.02
+
+
+def test_device_lines_of_a_record_without_period():
+    """Lines the device makes (at frequencies off the DFT grid) read by a least-squares fit in a
+    Hann frame: about one chi-square unit per line under noise alone, far more with a sinusoid of
+    a tenth of the noise's rms at one of them."""
+    from ssamb.closeloop.residual import _device_lines, _line_floor
+    from ssamb.closeloop.spectra import dft, noise_floor
+
+    rng = np.random.default_rng(4)
+    n = 20000
+    fr = make_frame(FS, 0, n, {}, None, None)
+    lines = (123.4567, 234.5678, 345.6789)
+    t = np.arange(n) / FS
+    chis = {}
+    for amp in (0.0, 0.1):
+        vals = []
+        for _ in range(40):
+            e = rng.standard_normal(n) + amp * np.cos(2 * np.pi * lines[1] * t + 0.3)
+            X = {"c": dft(fr, e)}
+            Sl = {"c": _line_floor(fr, noise_floor(fr, X["c"]), 0.0)}
+            vals.append(_device_lines(fr, X, Sl, lines, ("c",), {"c": e}, {"c": 0.0})["c"]["chi2"])
+        chis[amp] = np.mean(vals)
+    assert 2.2 < chis[0.0] < 4.0, chis
+    assert chis[0.1] > 20.0, chis
+
+
+def test_report_says_when_the_misfit_stays_far_above_the_noise_and_how_the_optimum_is_known():
+    """The notes name the views whose held-out chi-square per entry stays above twice the noise's,
+    and an unconverged joint refit; a model at the noise gets no note."""
+    from ssamb.closeloop.report import _misfit_notes
+    from ssamb.closeloop.search import optimum_of
+
+    mis = {"ratio": 5.0, "views": {"y": {"ratio": 9.0}, "u": {"ratio": 1.1}}}
+    notes = _misfit_notes(mis, {"converged": True})
+    assert len(notes) == 1 and "5 times the noise" in notes[0] and "y 9" in notes[0] and "u 1.1" not in notes[0]
+    assert _misfit_notes({"ratio": 1.05, "views": {"y": {"ratio": 1.1}}}, {"converged": True}) == []
+    fit = SimpleNamespace(converged=False, iterations=12, evaluations=300,
+                          history=[{"step_norm": 3.0}, {"step_norm": 1.7}, {"noise_factors": []}])
+    opt = optimum_of(fit, 1.0)
+    assert not opt["converged"] and opt["last_step_posterior_sd"] == 1.7
+    assert "did NOT converge" in _misfit_notes({}, opt)[0]
