@@ -599,10 +599,8 @@ def _cross_spectra(layout: Layout, x: np.ndarray, seg: slice) -> tuple:
     """Welch cross-spectra of the views with each excited axis at the layout's bins, ``(F (A, K, V),
     Y (segments, V, K), Sa (segments, A, K))``."""
     nper, kb = layout.nperseg, layout.bins
-    if not layout.axes:                   # nothing excited (levitation at rest): no cross-spectra
-        return Features(x.sum(axis=1), np.zeros((0, len(kb), x.shape[0]), complex), lines, empty, empty, empty)
     Y = _welch_segments(x, nper)[:, :, kb]
-    if not layout.axes:
+    if not layout.axes:                   # nothing excited (levitation at rest): no cross-spectra
         return np.zeros((0, len(kb), x.shape[0]), complex), Y, np.zeros((Y.shape[0], 0, len(kb)), complex)
     Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
     return np.einsum("svk,sak->akv", Y, Sa.conj()) / Y.shape[0], Y, Sa
