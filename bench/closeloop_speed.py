@@ -80,4 +80,7 @@ def _count_simulations() -> dict:
 
 
 if __name__ == "__main__":
+    from ssamb import pin_blas_threads
+
+    pin_blas_threads()
     main()

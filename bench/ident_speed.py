@@ -210,4 +210,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    from ssamb import pin_blas_threads
+
+    pin_blas_threads()
     raise SystemExit(main())

@@ -128,4 +128,7 @@ def main():
 
 
 if __name__ == "__main__":
+    from ssamb import pin_blas_threads
+
+    pin_blas_threads()
     main()

@@ -189,4 +189,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    from ssamb import pin_blas_threads
+
+    pin_blas_threads()
     sys.exit(main())

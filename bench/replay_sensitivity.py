@@ -72,4 +72,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from ssamb import pin_blas_threads
+
+    pin_blas_threads()
     main()

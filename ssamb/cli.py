@@ -37,7 +37,7 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="run the nonlinear simulator for an experiment named in the config")
     p.add_argument("--experiment", required=True, help="experiment name (config 'experiments')")
-    p.add_argument("--config", default=None, help="config file (default: the repository's config.yaml)")
+    p.add_argument("--config", default=None, help="config file (default: ./config.yaml if there is one, else the configuration shipped with ssamb)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, dotted key (repeatable)")
     p.add_argument("--out", required=True, help="output .npz (a .json sidecar is written beside it)")
@@ -110,9 +110,11 @@ def _cmd_closeloop(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit status (0 success, 2 bad input)."""
+    from ._threads import pin_blas_threads
     from .errors import InputError
 
     args = _parser().parse_args(argv)
+    pin_blas_threads()
     handlers = {"simulate": _cmd_simulate, "rig": _cmd_rig, "closeloop": _cmd_closeloop}
     try:
         handlers[args.command](args)

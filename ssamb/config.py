@@ -2,16 +2,26 @@
 
 The configuration is a nested dictionary (as Snakemake sees it). :func:`load_config` reads a
 YAML file, applies ``KEY=VALUE`` overrides with dotted keys, and validates the result with
-:func:`validate_config`: first against ``workflow/schemas/config.schema.yaml`` (JSON Schema),
-then against cross-key physical rules that a schema cannot express. Every violation raises
+:func:`validate_config`: first against the JSON Schema ``config.schema.yaml``, then against
+cross-key physical rules that a schema cannot express. Every violation raises
 :class:`ConfigError` whose message names the key and the rule broken.
+
+Which file: an explicit path, else ``config.yaml`` in the working directory, else the default
+configuration shipped inside the package (:func:`find_config`). The default configuration and
+the schema are package data (``ssamb/data``, read with :mod:`importlib.resources`), so an
+installed ssamb runs anywhere. In the repository they are symbolic links to the top-level
+``config.yaml`` and ``workflow/schemas/config.schema.yaml``, the one copy a user edits and the
+workflow reads; building a wheel or an archive stores their contents.
 """
 from __future__ import annotations
 
+import atexit
+import contextlib
 import copy
 import functools
 import hashlib
 import json
+from importlib import resources
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
@@ -24,6 +34,7 @@ __all__ = [
     "ConfigError",
     "SCHEMA_PATH",
     "DEFAULT_CONFIG_PATH",
+    "find_config",
     "load_config",
     "validate_config",
     "apply_overrides",
@@ -31,9 +42,20 @@ __all__ = [
     "get",
 ]
 
-PACKAGE_ROOT = Path(__file__).resolve().parent.parent
-SCHEMA_PATH = PACKAGE_ROOT / "workflow" / "schemas" / "config.schema.yaml"
-DEFAULT_CONFIG_PATH = PACKAGE_ROOT / "config.yaml"
+_DATA_FILES = contextlib.ExitStack()
+atexit.register(_DATA_FILES.close)
+
+
+def _package_data(name: str) -> Path:
+    """A file of ``ssamb/data`` as a path on disk (extracted for the process's lifetime when the
+    package is imported from an archive)."""
+    return Path(_DATA_FILES.enter_context(resources.as_file(resources.files("ssamb") / "data" / name)))
+
+
+#: the JSON Schema every configuration is validated against (package data)
+SCHEMA_PATH = _package_data("config.schema.yaml")
+#: the default configuration: the paper's Table 1 and the modelling assumptions (package data)
+DEFAULT_CONFIG_PATH = _package_data("config.yaml")
 
 
 class ConfigError(InputError):
@@ -260,9 +282,58 @@ def read_yaml_mapping(path: Path, label: str, error: type = ValueError) -> dict:
     return data
 
 
+def find_config(path: str | Path | None = None) -> Path:
+    """The configuration file to use.
+
+    Parameters
+    ----------
+    path : path, optional
+        A configuration file given explicitly (``--config``).
+
+    Returns
+    -------
+    Path
+        ``path`` when given; else ``config.yaml`` in the working directory when there is one
+        (a user's own configuration, or the repository's when run from a checkout); else the
+        default configuration shipped with ssamb (:data:`DEFAULT_CONFIG_PATH`).
+    """
+    if path is not None:
+        return Path(path)
+    local = Path("config.yaml")
+    return local if local.is_file() else DEFAULT_CONFIG_PATH
+
+
 def load_config(path: str | Path | None = None, overrides=None) -> dict:
-    """Load, override and validate a configuration file (default: the repository's ``config.yaml``)."""
-    path = Path(path) if path is not None else DEFAULT_CONFIG_PATH
+    """Load, override and validate a configuration file.
+
+    Parameters
+    ----------
+    path : path, optional
+        The configuration file; without it, :func:`find_config` chooses (``./config.yaml``,
+        else the default shipped with ssamb).
+    overrides : iterable of str or mapping, optional
+        ``KEY=VALUE`` strings or a mapping of dotted keys to values
+        (:func:`apply_overrides`), applied before validation.
+
+    Returns
+    -------
+    dict
+        The validated configuration.
+
+    Raises
+    ------
+    ConfigError
+        The file is missing or not a YAML mapping, or a value breaks the schema or a cross-key
+        rule; the message names the file and the key.
+
+    Examples
+    --------
+    >>> from ssamb.config import load_config
+    >>> cfg = load_config(overrides=["table1.i_bias_a=2.5"])
+    >>> cfg["table1"]["i_bias_a"]
+    2.5
+    """
+    path = find_config(path)
     cfg = read_yaml_mapping(path, f"config file '{path}'", ConfigError)
     try:
         cfg = apply_overrides(cfg, overrides)

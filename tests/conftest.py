@@ -10,6 +10,12 @@ from pathlib import Path
 import pytest
 from hypothesis import settings as _hyp_settings
 
+import ssamb
+
+# the test session is an entry point like the command line and the workflow: the same BLAS
+# threads, so the same bits
+ssamb.pin_blas_threads()
+
 # property tests draw the same examples on every run (CI must not pass or fail by luck); a
 # developer hunting for new counterexamples runs with HYPOTHESIS_PROFILE=explore
 _hyp_settings.register_profile("ci", derandomize=True)

@@ -74,8 +74,16 @@ def job_log(path: str, stage: str):
         The job's log file (``snakemake.log[0]``), created or truncated.
     stage : str
         The stage's name, the first word of the one-line message.
+
+    Notes
+    -----
+    The job is an entry point: BLAS is pinned to one thread first
+    (:func:`ssamb.pin_blas_threads`), for the same bits in every job.
     """
+    from .._threads import pin_blas_threads
     from ..errors import InputError
+
+    pin_blas_threads()
 
     saved = sys.stdout, sys.stderr
     with open(path, "w", encoding="utf-8", buffering=1) as log:
