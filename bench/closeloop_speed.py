@@ -33,7 +33,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--data", default=str(REPO / "resources" / "rig_demo.npz"), help="measured data (2 s)")
     ap.add_argument("--repeat", type=int, default=1, help="timed runs (the best is reported)")
-    ap.add_argument("--workers", type=int, default=2, help="processes for the independent replays (as the workflow's 2 threads)")
+    ap.add_argument("--workers", type=int, default=2, help="processes for the independent replays (as the workflow's "
+                                                           "2 threads)")
     args = ap.parse_args()
     cfg = load_config()
     simulate(cfg, "multisine", duration_s=0.01, progress=False)      # compile (excluded)

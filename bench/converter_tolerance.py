@@ -107,7 +107,8 @@ def measure_seeds(cfg: dict, seeds: list[int]) -> dict:
 def _row(label: str, m: dict) -> str:
     um = {k: 1e6 * v for k, v in m.items() if k.endswith("_m")}
     return (f"  {label:>15s}  {m['delev']:>3d}/{m['n']:<3d}  {um['rest_y_m']:7.2f}  {um['rest_ytrue_m']:7.2f}  "
-            f"{m['rest_uy_a']:7.3f}  {um['rest_x_m']:7.2f}  {m['rest_ux_a']:7.3f}  {um['ms_y_m']:7.2f}  {um['ms_x_m']:7.2f}")
+            f"{m['rest_uy_a']:7.3f}  {um['rest_x_m']:7.2f}  {m['rest_ux_a']:7.3f}  {um['ms_y_m']:7.2f}  "
+            f"{um['ms_x_m']:7.2f}")
 
 
 def main() -> None:

@@ -150,7 +150,8 @@ def run(args) -> list[dict]:
     else:
         fs_hz = FS_HZ_DEFAULT
         data = synthetic_data(args.duration_s, fs_hz, args.seed)
-        print(f"data: synthetic (no {REAL_DATA.relative_to(ROOT)}), {args.duration_s} s at {fs_hz:g} Hz, seed {args.seed}")
+        print(f"data: synthetic (no {REAL_DATA.relative_to(ROOT)}), {args.duration_s} s at {fs_hz:g} Hz, seed "
+              f"{args.seed}")
     print(f"cpus: {os.cpu_count()}, load average at start: {os.getloadavg()[0]:.2f}")
     if args.blas_threads is not None:  # inherited by the spawned workers before numpy loads
         for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -158,7 +159,8 @@ def run(args) -> list[dict]:
         print(f"BLAS threads per identification: {args.blas_threads}")
     ctx = mp.get_context("spawn")
     rows = []
-    hdr = f"{'subsystem':12s}{'method':10s}{'I/O':>6s}{'order':>6s}{'N':>8s}{'f/p':>7s}{'wall s':>8s}{'RSS GB':>8s}{'+RSS GB':>8s}{'numpy GB':>9s}  fit (estimation, %)"
+    hdr = (f"{'subsystem':12s}{'method':10s}{'I/O':>6s}{'order':>6s}{'N':>8s}{'f/p':>7s}{'wall s':>8s}"
+           f"{'RSS GB':>8s}{'+RSS GB':>8s}{'numpy GB':>9s}  fit (estimation, %)")
     print(hdr)
     print("-" * len(hdr))
     for sub in args.subsystems:
@@ -190,7 +192,8 @@ def run(args) -> list[dict]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default=None, help="NPZ in the measured-data format (default: the id_pulses result if present)")
+    ap.add_argument("--data", default=None, help="NPZ in the measured-data format (default: the id_pulses result if "
+                                                 "present)")
     ap.add_argument("--methods", nargs="+", default=["N4SID", "MOESP", "CVA", "PARSIM-K"])
     ap.add_argument("--ss-f", type=int, default=30)
     ap.add_argument("--ss-p", type=int, default=30)

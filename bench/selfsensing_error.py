@@ -54,7 +54,8 @@ def part1(cfg) -> None:
     print("1. estimator error in the loop, default converters "
           f"({cfg['converters']['current_adc_bits']}-bit over +/-{cfg['converters']['current_adc_range_a']} A, "
           f"{1e3 * cfg['converters']['current_noise_a']:.1f} mA rms)")
-    print(f"   {'estimator':10s} {'sweep rms (um)':>15s} {'sweep delev (s)':>16s} {'rest rms (um)':>14s} {'rest delev (s)':>15s}")
+    print(f"   {'estimator':10s} {'sweep rms (um)':>15s} {'sweep delev (s)':>16s} {'rest rms (um)':>14s} "
+          f"{'rest delev (s)':>15s}")
     for est in ("lsq", "peak"):
         c = apply_overrides(cfg, {"selfsensing.estimator": est})
         sweep = simulate(c, "sweep", progress=False)
@@ -87,7 +88,8 @@ def part2a(cfg) -> None:
     wn = math.sqrt(k_net / par.mass_kg)
     zeta = t1["pid_kd_a_s_per_m"] * ki / (2 * math.sqrt(k_net * par.mass_kg))
     print("2a. the Table 1 loop, gains in A/m (controller output = differential current)")
-    print(f"    ki = {ki:.1f} N/A, ks = {ks:.3g} N/m (levitated, network on): Kp ki - ks = {k_net:.3g} N/m, natural frequency "
+    print(f"    ki = {ki:.1f} N/A, ks = {ks:.3g} N/m (levitated, network on): Kp ki - ks = {k_net:.3g} N/m, natural "
+          "frequency "
           f"{wn / 2 / math.pi:.0f} Hz, damping {zeta:.2f}")
     f = np.logspace(0, 4, 20000)
     s = 2j * np.pi * f
@@ -150,7 +152,8 @@ def part2c(cfg) -> None:
     n = int(0.3 * fs)
     peak = {"selfsensing.estimator": "peak"}
     cases = [("peak, default", {}), ("peak, no eddy currents", {"magnetics.eddy_currents": False}),
-             ("peak, ideal converters", IDEAL), ("peak, no computation delay", {"converters.computation_delay_samples": 0}),
+             ("peak, ideal converters", IDEAL),
+             ("peak, no computation delay", {"converters.computation_delay_samples": 0}),
              ("peak, estimate low-pass 400 Hz", {"selfsensing.lowpass_hz": 400.0}),
              ("peak, window 25 samples", {"selfsensing.window_samples": 25}),
              ("lsq, default", {"selfsensing.estimator": "lsq"})]

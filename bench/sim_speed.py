@@ -110,7 +110,8 @@ def main() -> None:
           f"(eddy model {mag['eddy_model']}, estimator {cfg['selfsensing']['estimator']}, converters on)")
     print(f"CPU affinity: {sorted(os.sched_getaffinity(0))}")
     print(f"load average (1 min) before/after: {load_before[0]:.2f} / {load_after[0]:.2f} on {os.cpu_count()} CPUs")
-    print(f"wall time (best of {args.repeat}, incl. calibration): {best_wall:.3f} s = {1e6 * best_wall / n:.3f} us/sample")
+    print(f"wall time (best of {args.repeat}, incl. calibration): {best_wall:.3f} s = {1e6 * best_wall / n:.3f} "
+          "us/sample")
     print(f"CPU time  (best of {args.repeat}, incl. calibration): {best_cpu:.3f} s = {1e6 * best_cpu / n:.3f} us/sample"
           f" (CPU real-time factor {args.seconds / best_cpu:.1f})")
     print(f"real-time factor: {args.seconds / best_wall:.1f}")

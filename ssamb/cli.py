@@ -1,6 +1,6 @@
 """Command line: ``python -m ssamb <command> ...``.
 
-Commands (binding interface, ARCHITECTURE.md):
+Commands (a stable interface; docs/cli.md):
 
 * ``simulate --experiment NAME [--config FILE] [--set KEY=VALUE ...] --out FILE.npz``
 * ``rig SCENARIO.yaml --out FILE.npz``
@@ -37,7 +37,8 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="run the nonlinear simulator for an experiment named in the config")
     p.add_argument("--experiment", required=True, help="experiment name (config 'experiments')")
-    p.add_argument("--config", default=None, help="config file (default: ./config.yaml if there is one, else the configuration shipped with ssamb)")
+    p.add_argument("--config", default=None, help="config file (default: ./config.yaml if there is one, else the "
+                                                  "configuration shipped with ssamb)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, dotted key (repeatable)")
     p.add_argument("--out", required=True, help="output .npz (a .json sidecar is written beside it)")
@@ -57,7 +58,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="amb", help="the device the data come from: amb (default) or maglev1d")
     p.add_argument("--config", default=None, help="config of the nominal model (default: the device's own)")
     p.add_argument("--workers", type=int, default=None,
-                   help="processes for the independent replays (default: the CPUs available; the result does not depend on it)")
+                   help="processes for the independent replays (default: the CPUs available; the result does not "
+                        "depend on it)")
     p.add_argument("--quiet", action="store_true")
     return ap
 

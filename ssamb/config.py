@@ -141,7 +141,8 @@ def _physical_errors(cfg: Mapping) -> list[str]:
     for name, exp in cfg["experiments"].items():
         exc = exp["excitation"]
         if exc["kind"] != "none" and "point" not in exc:
-            msgs.append(f"config key 'experiments.{name}.excitation.point': missing (required for kind '{exc['kind']}')")
+            msgs.append(f"config key 'experiments.{name}.excitation.point': missing (required for kind "
+                        f"'{exc['kind']}')")
         if exp["duration_s"] is None and exc["kind"] != "multisine":
             msgs.append(f"config key 'experiments.{name}.duration_s': null is only allowed for multisine excitation")
     del mag
@@ -162,7 +163,8 @@ def _physical_errors(cfg: Mapping) -> list[str]:
         refs.append(("uncertainty.experiment", cfg["uncertainty"]["experiment"]))
         e = exps.get(cfg["uncertainty"]["experiment"])
         if e is not None and e["excitation"]["kind"] != "multisine":
-            msgs.append("config key 'uncertainty.experiment': must name a multisine experiment (the ETFE is read on its lines)")
+            msgs.append("config key 'uncertainty.experiment': must name a multisine experiment (the ETFE is read on "
+                        "its lines)")
     if "mu" in cfg and cfg["mu"]["f_min_hz"] >= cfg["mu"]["f_max_hz"]:
         msgs.append("config key 'mu.f_min_hz': must be below mu.f_max_hz")
     if "validation" in cfg:

@@ -101,7 +101,8 @@ def identification_figures(info: Mapping, model, u_val, y_val, fs_hz: float, fig
         axs[i, 0].set_ylabel(f"{name} ({_UNIT.get(name, '-')})")
     axs[0, 0].legend(loc="upper right", fontsize=8)
     axs[-1, 0].set_xlabel("time (ms)")
-    axs[0, 0].set_title(f"{sub}: validation data, fit " + ", ".join(f"{k} {v:.1f} %" for k, v in info["fit_pct"].items()))
+    fits = ", ".join(f"{k} {v:.1f} %" for k, v in info["fit_pct"].items())
+    axs[0, 0].set_title(f"{sub}: validation data, fit {fits}")
     fig.tight_layout()
     save(fig, fig_dir / f"{sub}_validation.png")
 

@@ -1,6 +1,6 @@
 """Files: NPZ arrays with a JSON sidecar, the measured-data format, atomic writes.
 
-Conventions (ARCHITECTURE.md)
+Conventions (docs/formats.md)
 -----------------------------
 * Arrays go into ``NAME.npz``; metadata (config hash, seed, versions, ...) into ``NAME.json``
   beside it.
@@ -245,7 +245,8 @@ def load_npz(path: str | Path) -> tuple[dict, dict]:
     except DataError:
         raise
     except _NPZ_ERRORS as exc:
-        raise DataError(f"{path}: not a readable NPZ file ({type(exc).__name__}: {' '.join(str(exc).split()) or 'empty'})") from None
+        raise DataError(f"{path}: not a readable NPZ file ({type(exc).__name__}: "
+                        f"{' '.join(str(exc).split()) or 'empty'})") from None
     if "meta" in arrays:
         meta = _parse_meta(str(arrays.pop("meta")), f"{path}: member 'meta'")
     elif path.with_suffix(".json").exists():
@@ -338,7 +339,8 @@ def validate_measured(arrays: Mapping[str, Any], source: str = "data", min_sampl
             raise DataError(f"{source}: column '{c}' is not real numbers (dtype {a.dtype})")
         bad = ~np.isfinite(a)
         if bad.any():
-            raise DataError(f"{source}: column '{c}' has {int(bad.sum())} non-finite value(s) (NaN/inf), first at sample {int(np.argmax(bad))}")
+            raise DataError(f"{source}: column '{c}' has {int(bad.sum())} non-finite value(s) (NaN/inf), first at "
+                            f"sample {int(np.argmax(bad))}")
     if n < min_samples:
         raise DataError(f"{source}: only {n} samples (need at least {min_samples})")
     dt = np.diff(np.asarray(arrays["t"], dtype=float))

@@ -191,7 +191,8 @@ def _verdict(a: dict, edge, plant_crit) -> tuple[str, str]:
     text += (f"; there |W| = {a['weight_mag']:.3g} and the unweighted transfer {a['loop_gain_at_peak']:.3g}; "
              f"with a flat weight the peak is at {flat_hz:.3g} Hz")
     if plant_crit is not None:
-        text += f"; the identified plant model's unstable pole (the critical frequency sqrt(ks/m)/2pi) is at {plant_crit:.3g} Hz"
+        text += ("; the identified plant model's unstable pole (the critical frequency sqrt(ks/m)/2pi) is at "
+                 f"{plant_crit:.3g} Hz")
     return cause, text + f"; cause: {cause}"
 
 
@@ -208,7 +209,8 @@ def _attribute(loop, weights, case: str, f_pk: float, peak: float, grid, modal) 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         dm = mu_frequency_response(_n11_modal(*_damped(lam, res, dom["index"], dt, DZETA), D, dt, wfun), grid, blk)
-        flat = {k: abs(complex(np.squeeze(weights[k](2j * np.pi * f_pk)))) for k in dict.fromkeys(wrow)}  # ordered: reproducible files
+        # in a fixed order: reproducible files
+        flat = {k: abs(complex(np.squeeze(weights[k](2j * np.pi * f_pk)))) for k in dict.fromkeys(wrow)}
         fl = mu_frequency_response(n11_function(loop, {k: control.tf([v], [1]) for k, v in flat.items()}, case),
                                    grid, blk)
     strip = lambda m: {k: v for k, v in m.items() if k != "index"}  # noqa: E731

@@ -2,7 +2,7 @@ r"""A simulated rig: a model that is not the nominal one, with undeclared effect
 logging chain.
 
 ``python -m ssamb rig SCENARIO.yaml --out DATA.npz`` (:func:`run_scenario`) reads a scenario
-file (ARCHITECTURE.md, "Scenario file"), simulates the nonlinear AMB with the rig's own
+file (docs/formats.md, "Scenario file"), simulates the nonlinear AMB with the rig's own
 parameters and the scenario's effects, passes the logged channels through the logging chain
 (anti-alias filter, then logging noise) and writes **only what a rig logs**: the measured-data
 format (plus the optional columns ``inj_x``, ``inj_y``) and a ``meta`` that describes the
@@ -432,7 +432,7 @@ def run_scenario(scenario_path: str | Path, out_path: str | Path, progress: bool
     Parameters
     ----------
     scenario_path : path
-        Scenario YAML (ARCHITECTURE.md, "Scenario file").
+        Scenario YAML (docs/formats.md, "Scenario file").
     out_path : path
         Output ``.npz`` in the measured-data format (a ``.json`` sidecar with ``meta`` is
         written beside it).

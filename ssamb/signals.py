@@ -6,7 +6,7 @@ says otherwise), in SI units: metres for position references, amperes for curren
 Sample ``n`` is at ``t[n] = n / fs_hz``; a record of ``duration_s`` has
 ``round(duration_s * fs_hz)`` samples.
 
-Where each signal is used in the paper (/work/shared/seed-paper.md):
+Where each signal is used in the paper:
 
 * :func:`pulses` -- "rectangular pulses injected prior to the power amplifiers" for the
   closed-loop identification of the nominal subsystem models (section 3);
@@ -318,9 +318,9 @@ def multisine(
     :math:`\varphi_k = -\pi i (i-1) / |K|` (``phase="schroeder"``, low crest factor), and
     :math:`c` chosen so that :math:`\max_n |x[n]|` over a period equals ``amplitude`` exactly
     (``amplitude_definition="peak"``: our reading of the paper's "amplitude of 100 um") or
-    :math:`c` = ``amplitude`` (``"per_line"``: every line has that amplitude). The period is built with an inverse real FFT, so the
-    DFT of any whole period is zero outside the excited bins (no leakage) and the record is
-    exactly periodic: ``x[n + N] == x[n]``.
+    :math:`c` = ``amplitude`` (``"per_line"``: every line has that amplitude). The period is
+    built with an inverse real FFT, so the DFT of any whole period is zero outside the excited
+    bins (no leakage) and the record is exactly periodic: ``x[n + N] == x[n]``.
 
     With ``start_near_zero`` the period is rotated to start at its smallest sample (no jump of
     the reference at t = 0); the shift only adds a linear phase, included in ``phases_rad``.
@@ -677,7 +677,8 @@ def _used_seed(spec, seed, kind: str) -> int | None:
         return None
     base = spec.get("seed", seed)
     if base is None:
-        raise ValueError(f"excitation key 'seed': missing (kind '{kind}' is random: pass seed= or put seed in the spec)")
+        raise ValueError(f"excitation key 'seed': missing (kind '{kind}' is random: pass seed= or put seed in the "
+                         "spec)")
     return _int("seed", base, minimum=0) + _int("excitation key 'seed_offset'", spec.get("seed_offset", 0), minimum=0)
 
 

@@ -389,7 +389,8 @@ def test_fast_simulators_equal_sippy():
     rng = np.random.default_rng(1)
     n, m, l_, N = 3, 2, 2, 50
     A = 0.5 * rng.standard_normal((n, n))
-    B, C, D, K = rng.standard_normal((n, m)), rng.standard_normal((l_, n)), rng.standard_normal((l_, m)), rng.standard_normal((n, l_))
+    B, C = rng.standard_normal((n, m)), rng.standard_normal((l_, n))
+    D, K = rng.standard_normal((l_, m)), rng.standard_normal((n, l_))
     u, y, x0 = rng.standard_normal((m, N)), rng.standard_normal((l_, N)), rng.standard_normal((n, 1))
     for a, b in zip(SS_lsim_process_form(A, B, C, D, u, x0), _fast_process_form(A, B, C, D, u, x0)):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)

@@ -4,12 +4,12 @@ Linearised about the levitated operating point, one axis of the plant is
 y / i_c = ki / (m s^2 - ks), with i_c the differential control current ((i_ypos - i_yneg)/2)
 and ki, ks the stiffnesses of the simulator's static model at the levitated equilibrium
 (:func:`ssamb.sim.statics.linear_stiffness`: the series magnets of :meth:`AMBParams.ki_ks` plus the
-stator network's coupling, which adds about 19 % of negative stiffness). Tolerances: the open-loop unstable pole sqrt(ks/m) within 3 %, the frequency
-response within 10 % between 30 and 150 Hz. Justification: the data are nonlinear -- the rotor
-moves +-30 um (ks varies with (y/g)^2, ~1 %), the iron path and eddy currents add a few percent
-to the reluctance, the current samples carry the PWM ripple -- and an identified 9th-order model
-spreads its error over the band; outside 30-150 Hz the excitation (pulses filtered by the loop)
-is weak.
+stator network's coupling, which adds about 19 % of negative stiffness). Tolerances: the open-loop
+unstable pole sqrt(ks/m) within 3 %, the frequency response within 10 % between 30 and 150 Hz.
+Justification: the data are nonlinear -- the rotor moves +-30 um (ks varies with (y/g)^2, ~1 %),
+the iron path and eddy currents add a few percent to the reluctance, the current samples carry
+the PWM ripple -- and an identified 9th-order model spreads its error over the band; outside
+30-150 Hz the excitation (pulses filtered by the loop) is weak.
 """
 
 import numpy as np

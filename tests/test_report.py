@@ -25,8 +25,8 @@ STAGE_PNGS = (["model/fig4.png", "validation/fig9.png"]
               + [f"ident/{s}_{k}.png" for s in ("plant", "amplifier", "selfsensing") for k in ("orders", "validation")]
               + [f"uncertainty/{s}_fig7.png" for s in ("plant", "amplifier", "selfsensing")]
               + [f"mu/{c}_fig8.png" for c in ("selfsensing", "amplifier", "plant", "all")]
-              + [f"closeloop/{f}.png" for f in ("calibration", "features", "residual_time", "residual_spectra", "evidence",
-                                               "sensor_ratio")]
+              + [f"closeloop/{f}.png" for f in ("calibration", "features", "residual_time", "residual_spectra",
+                                               "evidence", "sensor_ratio")]
               + [f"rigs/toy/{f}.png" for f in ("holdout_c", "holdout_spectra", "agreement")])
 
 

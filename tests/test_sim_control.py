@@ -271,7 +271,8 @@ def test_params_derivations(cfg):
     assert par.pole_area_m2 == pytest.approx(13.89e-3 * 49.15e-3)
     assert par.turns == 100
     # weight carried by a control current well below the bias
-    assert 0 < simulate(cfg, duration_s=0.001, arrays={"r_y": np.zeros(83)}, settle_s=0.0).meta["equilibrium"]["u_y"] < 1.0
+    res = simulate(cfg, duration_s=0.001, arrays={"r_y": np.zeros(83)}, settle_s=0.0)
+    assert 0 < res.meta["equilibrium"]["u_y"] < 1.0
 
 
 def test_axis_both_gives_independent_signals(cfg):

@@ -32,7 +32,8 @@ def make_notebook(results_dir: str | Path, config_path: str | Path, closeloop_di
         "from ssamb.report import sections\nfrom ssamb.report.context import load_context\n"
         "from ssamb.report.render import show\nwarnings.filterwarnings('ignore')\n"
         "plt.rcParams.update({'figure.dpi': 110, 'axes.grid': True})\n"
-        f"ctx = load_context({str(Path(results_dir).resolve())!r}, {str(Path(config_path).resolve())!r}, {cl!r}, {st!r})"))
+        f"ctx = load_context({str(Path(results_dir).resolve())!r}, {str(Path(config_path).resolve())!r}, {cl!r}, "
+        f"{st!r})"))
     for name in sections:
         nb.cells.append(new_code_cell(f"sec = sections.{name}(ctx)\nif sec is not None:\n    show(sec)"))
     return nb

@@ -65,7 +65,8 @@ def _fit_rows(S, P, study) -> list:
     px, py = _get(P, "fit_pct", "x"), _get(P, "fit_pct", "y")
     stable = _get(P, "stable")
     why_y = (f"With the paper's structure the assembled loop is {'stable' if stable else 'unstable'} "
-             f"(spectral radius {_f(_get(P, 'spectral_radius'), 6)}) and y fits {_f(py, 4, ' %')}; ours (position-input "
+             f"(spectral radius {_f(_get(P, 'spectral_radius'), 6)}) and y fits {_f(py, 4, ' %')}; ours "
+             "(position-input "
              f"self-sensing, command-input amplifier) fits {_f(fy, 4, ' %')}. " + mover(study, "fit_y_pct", " %")
              + _which(study, "fit_y_near_paper"))
     return [("closed-loop LTI fit, x (Fig. 4)", f"{PAPER['fit_x_pct'][0]} %", _f(fx, 4, " %"), _f(px, 4, " %"),
@@ -109,7 +110,8 @@ def _sweep_rows(S, P, study) -> list:
     dl, pdl = S["delevitation_s"], _get(P, "delevitation_s") or {}
     sw = _get(S, "details", "validation", "sweep") or {}
     band = PAPER["sweep_band_hz"][0]
-    ours = (f"{sw['amplitude_m'] * 1e6:.3g} µm, {sw['f_start_hz']:g}-{sw['f_stop_hz']:g} Hz in {sw['sweep_duration_s']:g} s "
+    ours = (f"{sw['amplitude_m'] * 1e6:.3g} µm, {sw['f_start_hz']:g}-{sw['f_stop_hz']:g} Hz in "
+            f"{sw['sweep_duration_s']:g} s "
             f"({sw.get('law', 'linear')})") if sw else "none"
     return [("sweep signal (section 6)", f"{PAPER['sweep_amplitude_m'][0] * 1e6:.3g} µm, {band[0]:g}-{band[1]:g} Hz, "
              "duration not stated", ours, ours, "The paper gives amplitude and band, not the rate; the study varies "
@@ -119,8 +121,10 @@ def _sweep_rows(S, P, study) -> list:
              "The critical sweep amplitudes (report section 5) say how far from delevitation each model is. "
              + mover(study, "critical_nonlinear_um", " µm")
              + _which(study, "delevitation")),
-            ("delevitation, nominal LTI model", "none", _event(outs.get("nominal LTI")), _f(pdl.get("nominal_lti"), 3, " s"),
-             "An LTI model delevitates only above its exact critical amplitude. " + mover(study, "critical_lti_um", " µm")),
+            ("delevitation, nominal LTI model", "none", _event(outs.get("nominal LTI")),
+             _f(pdl.get("nominal_lti"), 3, " s"),
+             "An LTI model delevitates only above its exact critical amplitude. "
+             + mover(study, "critical_lti_um", " µm")),
             ("delevitation, augmented LTI model", "none",
              "; ".join(f"Delta={k}: {_event(o)}" for k, o in aug) if aug else _f(dl["augmented_lti"]),
              _f(pdl.get("augmented_lti"), 3, " s"), "Δ = +1, −1 and an all-pass, each with the measured weight.")]

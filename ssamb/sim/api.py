@@ -6,7 +6,7 @@ is drawn (:func:`converter_noise`); the levitated equilibrium is computed
 (:func:`ssamb.sim.statics.equilibrium`) and DCM self-sensing calibrated on a clamped rotor
 (:func:`calibrate_selfsensing`); the compiled kernel runs with a progress bar (:func:`run_kernel`);
 and the output is assembled into a :class:`SimResult` whose ``data`` is in the measured-data
-format (ARCHITECTURE.md) plus the true states (``x_true``, ``y_true``, ``b_*_t``, ``duty_*``,
+format (docs/formats.md) plus the true states (``x_true``, ``y_true``, ``b_*_t``, ``duty_*``,
 ``contact``, ...). Options other than the configuration travel in a :class:`SimOptions`.
 """
 from __future__ import annotations
@@ -180,7 +180,8 @@ def run_kernel(par: AMBParams, packed: np.ndarray, qtab: np.ndarray, start: str,
         from tqdm import tqdm
 
         bar = tqdm(total=n / par.fs_hz, unit="s(sim)", desc=desc, file=sys.stderr,
-                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.2f} s simulated [{elapsed}<{remaining}]")
+                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.2f}/{total:.2f} s simulated "
+                              "[{elapsed}<{remaining}]")
     for k0 in range(0, n, chunk):
         k1 = min(n, k0 + chunk)
         rip_n = run_chunk(packed, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise, npi,

@@ -48,7 +48,8 @@ def _order_scan(est, val, scan_cfg: Mapping, sel, fs_hz: float, kw: Mapping):
     None when the config lists no orders."""
     if not scan_cfg["orders"]:
         return None
-    (us, ys), (uvs, yvs) = _cut(est, float(scan_cfg["duration_s"]), fs_hz), _cut(val, float(scan_cfg["duration_s"]), fs_hz)
+    scan_s = float(scan_cfg["duration_s"])
+    (us, ys), (uvs, yvs) = _cut(est, scan_s, fs_hz), _cut(val, scan_s, fs_hz)
     return order_scan(us, ys, orders=[int(o) for o in scan_cfg["orders"]], method=sel.method, fs_hz=fs_hz,
                       input_names=est.input_names, output_names=est.output_names, u_val=uvs, y_val=yvs,
                       input_directions=sel.input_directions, **kw)
@@ -69,7 +70,8 @@ def _paper_variant(est_npz, val_npz, subsystem: str, variant: str, order: int, m
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
         reason = f"{type(exc).__name__}: {exc}"
         if out_variant is not None:
-            save_failed(out_variant, reason, {"stage": f"identify/{subsystem}", "subsystem": subsystem, "variant": variant})
+            save_failed(out_variant, reason,
+                        {"stage": f"identify/{subsystem}", "subsystem": subsystem, "variant": variant})
         return {"variant": variant, "failed": True, "error": reason}
     if out_variant is not None:
         save_model(out_variant, m2)

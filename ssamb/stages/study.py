@@ -66,7 +66,8 @@ def answers(variants: Mapping[str, Mapping], criteria: Mapping) -> dict:
             out["delevitation"].append(name)
         if _near(q["mu_peak_hz"], PAPER["mu_peak_hz"][0], float(criteria["mu_peak_factor"])):
             out["mu_peak_near_2hz"].append(name)
-        if q["fit_y_pct"] is not None and abs(q["fit_y_pct"] - PAPER["fit_y_pct"][0]) <= float(criteria["fit_y_points"]):
+        fit_y = q["fit_y_pct"]
+        if fit_y is not None and abs(fit_y - PAPER["fit_y_pct"][0]) <= float(criteria["fit_y_points"]):
             out["fit_y_near_paper"].append(name)
     return out
 

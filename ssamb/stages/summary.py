@@ -1,6 +1,6 @@
 """Stage ``summary``: a run's ``summary.json``, the numbers of the paper-versus-reproduction table.
 
-Every value is read from a stage output; nothing is typed in. Keys (binding, ARCHITECTURE.md):
+Every value is read from a stage output; nothing is typed in. Keys (stable; docs/formats.md):
 ``fit_pct`` {x, y}; ``orders`` {plant, amplifier, selfsensing}; ``subsystem_fit_pct``;
 ``weight_fit_max_db``; ``mu`` {case: {peak, peak_hz, margin, scale_for_unity}};
 ``delevitation_s`` {nonlinear, nominal_lti, augmented_lti} (null where none);

@@ -1,6 +1,6 @@
 r"""Additive dynamic uncertainty: ETFE of the mismatch (eq. 6), peak envelope, weight fit (Fig. 7).
 
-Paper section 5 (/work/shared/seed-paper.md) models what the nominal LTI model misses as an
+Paper section 5 models what the nominal LTI model misses as an
 additive uncertainty :math:`G = \bar G + W\Delta`, :math:`\|\Delta\|_\infty \le 1` (eq. 4), and
 measures its size with the empirical transfer function estimate (ETFE) of eq. (6):
 

@@ -275,15 +275,21 @@ def _envelope_lp(x: np.ndarray, data_idx: np.ndarray, y: np.ndarray, kappa: floa
     # envelope does not sag between lines (at the data points this is E_i >= y_i)
     y_nodes = np.interp(x, x[data_idx], y)
     for k in range(n):
-        rows.append(r); cols.append(k); vals.append(-1.0); b.append(-y_nodes[k]); r += 1
+        rows.append(r)
+        cols.append(k)
+        vals.append(-1.0)
+        b.append(-y_nodes[k])
+        r += 1
     # curvature: |(E_{k+1}-E_k)/h_k - (E_k-E_{k-1})/h_{k-1}| <= kappa (h_{k-1}+h_k)/2
     for k in range(1, n - 1):
         c_m, c_0, c_p = 1.0 / h[k - 1], -(1.0 / h[k - 1] + 1.0 / h[k]), 1.0 / h[k]
         lim = kappa * (h[k - 1] + h[k]) / 2.0
         for sgn in (1.0, -1.0):
-            rows += [r, r, r]; cols += [k - 1, k, k + 1]
+            rows += [r, r, r]
+            cols += [k - 1, k, k + 1]
             vals += [sgn * c_m, sgn * c_0, sgn * c_p]
-            b.append(lim); r += 1
+            b.append(lim)
+            r += 1
     a_ub = scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(r, n))
     # shift the data to O(1) numbers for the solver
     y0 = float(np.max(y))

@@ -158,7 +158,10 @@ class _Problem:
         deviation kept below ``band_limit``. Both keep L >= data on the lines."""
         xz, xp = self._spread(xz), self._spread(xp)
         nz, npol = xz.size, xp.size
-        split = lambda v: (v[0], v[1:1 + nz], v[1 + nz:1 + nz + npol])
+
+        def split(v):
+            return v[0], v[1:1 + nz], v[1 + nz:1 + nz + npol]
+
         phase2 = band_limit is not None
 
         def obj(v):

@@ -1,5 +1,5 @@
-"""Snakemake script: closed-loop LTI assembly and Fig. 4 (ssamb.stages.assemble.run_assemble); a failure in a scenario or study run is
-recorded in its outputs (ssamb.stages.run_guarded)."""
+"""Snakemake script: closed-loop LTI assembly and Fig. 4 (ssamb.stages.assemble.run_assemble);
+a failure in a scenario or study run is recorded in its outputs (ssamb.stages.run_guarded)."""
 from pathlib import Path
 
 from ssamb.stages import job_log, run_guarded

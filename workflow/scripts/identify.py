@@ -1,5 +1,5 @@
-"""Snakemake script: identify one subsystem (ssamb.stages.identify.run_identify); a failure in a scenario or study run is
-recorded in its outputs (ssamb.stages.run_guarded)."""
+"""Snakemake script: identify one subsystem (ssamb.stages.identify.run_identify);
+a failure in a scenario or study run is recorded in its outputs (ssamb.stages.run_guarded)."""
 from pathlib import Path
 
 from ssamb.stages import job_log, run_guarded

@@ -1,5 +1,5 @@
-"""Snakemake script: simulate one experiment (ssamb.stages.simulate.run_simulate); a failure in a scenario or study run is
-recorded in its outputs (ssamb.stages.run_guarded)."""
+"""Snakemake script: simulate one experiment (ssamb.stages.simulate.run_simulate);
+a failure in a scenario or study run is recorded in its outputs (ssamb.stages.run_guarded)."""
 
 from ssamb.stages import job_log, run_guarded
 from ssamb.stages.simulate import run_simulate

@@ -1,5 +1,5 @@
-"""Snakemake script: uncertainty weight of one subsystem (ssamb.stages.uncertainty.run_uncertainty); a failure in a scenario or study run is
-recorded in its outputs (ssamb.stages.run_guarded)."""
+"""Snakemake script: uncertainty weight of one subsystem (ssamb.stages.uncertainty.run_uncertainty);
+a failure in a scenario or study run is recorded in its outputs (ssamb.stages.run_guarded)."""
 
 from ssamb.stages import job_log, run_guarded
 from ssamb.stages.uncertainty import run_uncertainty

@@ -32,7 +32,8 @@ def _effects(C) -> list:
             for c in ("x_meas", "y_meas", "y_ss", "currents", "u_x", "u_y") if c in b]
     return [Table(["effect", "parameters", "standard error", "share of the error removed"], eff),
             Table(["channel", "rms nominal", "rms calibrated", "rms final", "noise rms", "fit % nominal",
-                   "fit % final"], errs, caption="Held-out error of the nominal, calibrated and final model (SI units)")]
+                   "fit % final"], errs, caption="Held-out error of the nominal, calibrated and final model (SI "
+                                                 "units)")]
 
 
 def _calibration(C) -> list:
@@ -50,7 +51,9 @@ def _calibration(C) -> list:
                   caption="Nominal parameters calibrated from the data (MAP with the tolerances as priors; "
                           "standard errors from the Jacobian at the optimum and the replays' own spread)"),
             f"Sensitivity matrix: rank {cal.get('rank')} of {cal.get('n_parameters')} (singular values of the "
-            f"information per tolerance at least 3), condition {_fmt(cal.get('condition')) if cal.get('condition') is not None else 'unbounded (numerically singular)'}. Identified combinations: "
+            "information per tolerance at least 3), condition "
+            f"{_fmt(cal['condition']) if cal.get('condition') is not None else 'unbounded (numerically singular)'}. "
+            "Identified combinations: "
             f"{combos or 'none'}. The calibration alone removes {100 * cal.get('error_reduction', 0.0):.0f} % of the "
             "nominal model's held-out residual excess."]
 
