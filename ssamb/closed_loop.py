@@ -12,7 +12,7 @@ operating point is the equilibrium :math:`x_{eq} = (I - A_{cl})^{-1} B_{cl} w_0`
 integrators settle where ``x_meas = r_x`` and ``y_ss = r_y``.
 
 Continuous-time equivalent (for μ)
----------------------------------
+----------------------------------
 :func:`to_continuous` inverts either the bilinear (Tustin) map or the zero-order hold:
 
 * ``'tustin'`` (default): :math:`A_c = \tfrac{2}{T}(A + I)^{-1}(A - I)`. The unit circle maps
@@ -491,7 +491,7 @@ def d2c_pole_sensitivity(sysd: control.StateSpace, method: str = "tustin") -> di
     Returns
     -------
     dict
-        ``poles_z``, ``poles_s``, ``gain`` (|ds/dz| per pole, 1/s), ``fs_hz``,
+        ``poles_z``, ``poles_s``, ``gain`` (:math:`|ds/dz|` per pole, 1/s), ``fs_hz``,
         ``gain_over_fs`` (gain / fs).
     """
     T = float(sysd.dt)

@@ -13,14 +13,14 @@ weights. Stability is robust for all :math:`\|\Delta\|_\infty \le 1` iff
 
 Uncertainty cases (dimensionally consistent channel sets, one scalar weight per subsystem):
 
-=============== ====================================== =================== ==========
-case            Delta input u (from the loop)           Delta output d        block
-=============== ====================================== =================== ==========
-selfsensing     the model's input (i_ypos or y_meas)    added to y_ss          [1, 1]
-amplifier       u_x_cmd, u_y_cmd                        added to 4 currents    [4, 2]
-plant           4 currents                              added to x, y          [2, 4]
-all             the three above, block-diagonal                                 three blocks
-=============== ====================================== =================== ==========
+=============== ====================================== ===================== ============
+case            Delta input u (from the loop)          Delta output d        block
+=============== ====================================== ===================== ============
+selfsensing     the model's input (i_ypos or y_meas)   added to y_ss         [1, 1]
+amplifier       u_x_cmd, u_y_cmd                       added to 4 currents   [4, 2]
+plant           4 currents                             added to x, y         [2, 4]
+all             the three above, block-diagonal                              three blocks
+=============== ====================================== ===================== ============
 
 Blocks follow MATLAB's ``mussv`` convention: ``[r, c]`` is an r-by-c full complex block, so
 ``M`` is (sum c) x (sum r).

@@ -89,7 +89,7 @@ def modal_terms(sys: control.StateSpace, rows: Sequence[int], cols: Sequence[int
 
 
 def weight_features(weight: control.TransferFunction, f_peak_hz: float, freqs_hz) -> dict:
-    """|W| at the peak, the weight's corners (Hz) and where |W| is largest on the grid."""
+    """The weight at the peak (:math:`|W|`), its corners (Hz) and where :math:`|W|` is largest on the grid."""
     f = np.asarray(freqs_hz, float)
     mag = np.abs(np.squeeze(weight(2j * np.pi * f)))
     z = np.abs(np.atleast_1d(weight.zeros())) / (2 * np.pi)

@@ -48,7 +48,7 @@ DELTAS = ("plus", "minus", "allpass")
 
 def delta_system(kind: str, dt: float, allpass_hz: float = 20.0) -> control.StateSpace:
     r"""Discrete :math:`\Delta`: ``plus`` (+1), ``minus`` (-1) or ``allpass``
-    :math:`(1 - s/\omega_a)/(1 + s/\omega_a)` (Tustin at ``dt``; Tustin preserves |Δ| = 1)."""
+    :math:`(1 - s/\omega_a)/(1 + s/\omega_a)` (Tustin at ``dt``; Tustin preserves :math:`|\Delta| = 1`)."""
     if kind == "plus":
         return control.ss([], [], [], [[1.0]], dt)
     if kind == "minus":

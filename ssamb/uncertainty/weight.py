@@ -287,8 +287,8 @@ def fit_weight(
     4. *Out of band* (``polish_out_of_band``): with the in-band deviation allowed to grow a third
        of the way from what step 3 reached to ``tol_db``, the largest deviation from the
        extension outside the band is minimised (the paper's weight is "strictly proper ... where
-       it does not violate the 3 dB band inside the measured range"; this keeps |W| sane on the
-       wide grid of the mu analysis). Out of band |W| follows the extension only as closely as a
+       it does not violate the 3 dB band inside the measured range"; this keeps :math:`|W|` sane on the
+       wide grid of the mu analysis). Out of band :math:`|W|` follows the extension only as closely as a
        low-order real-pole weight can.
     5. *Hard constraint of eq. (6)*: after every optimisation the gain is raised, if needed,
        until :math:`|W(j2\pi f_i)| \ge` ``etfe_mag[i]`` on every line; the raise is reported in

@@ -6,6 +6,11 @@ def mu_cases(run):
     return list(RUN_CONFIGS[run]["mu"]["cases"])
 
 
+def mu_settings(wc):
+    """Params: the mu section without its list of cases (which selects the jobs; a job reads its own)."""
+    return {k: v for k, v in cfg_of(wc)["mu"].items() if k != "cases"}
+
+
 rule identify:
     """SIPPY model of one subsystem (paper section 3): method comparison, order scan, paper variant."""
     input:
@@ -118,7 +123,7 @@ rule mu:
         fig="results/{run}mu/{case}_fig8.png",
     params:
         pid=section("table1", "controller"),
-        mu=lambda wc: cfg_of(wc)["mu"],
+        mu=mu_settings,
     log:
         "results/{run}logs/mu/{case}.log",
     benchmark:
@@ -138,7 +143,7 @@ rule baseline:
         json="results/{run}mu/baseline.json",
     params:
         pid=section("table1", "controller"),
-        mu=lambda wc: cfg_of(wc)["mu"],
+        mu=mu_settings,
     log:
         "results/{run}logs/baseline.log",
     benchmark:
