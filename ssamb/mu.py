@@ -1051,6 +1051,16 @@ def mussv(
     the lower one.  For purely complex structures with ``2 S + F <= 3`` (S repeated scalars, F
     full blocks) the upper bound equals μ (Packard & Doyle 1993); otherwise the gap can be
     non-zero.  With real blocks μ can be discontinuous and the lower bound may be 0.
+
+    Examples
+    --------
+    Two 1×1 complex blocks on a diagonal matrix: μ is its largest entry.
+
+    >>> import numpy as np
+    >>> from ssamb.mu import mussv
+    >>> r = mussv(np.diag([0.5, 0.3]), [[1, 1], [1, 1]])
+    >>> round(r.upper, 6), round(r.lower, 6)
+    (0.5, 0.5)
     """
     blocks = parse_blk(blk)
     lay = _layout(blocks)

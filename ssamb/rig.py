@@ -443,6 +443,11 @@ def run_scenario(scenario_path: str | Path, out_path: str | Path, progress: bool
     ------
     ScenarioError
         Invalid scenario (nothing is written).
+
+    Examples
+    --------
+    >>> from ssamb.rig import run_scenario
+    >>> run_scenario("resources/scenarios/rig_demo.yaml", "rig.npz")   # as python -m ssamb rig
     """
     out = Path(out_path)
     if out.suffix != ".npz":

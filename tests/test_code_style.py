@@ -116,3 +116,25 @@ def test_no_file_outside_the_repository_is_referred_to():
             if outside.search(line):
                 hits.append(f"{f.relative_to(ROOT)}:{n}: {line.strip()[:120]}")
     assert not hits, "\n".join(hits)
+
+
+def test_the_readme_is_short_and_starts_with_the_two_commands():
+    """Under 150 lines; its first code block holds exactly two commands: the full reproduction
+    and the tests, the latter exactly what CI runs (.ci/run)."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) < 150
+    block = text.split("```bash\n", 1)[1].split("```", 1)[0]
+    commands = [ln for ln in block.splitlines() if ln.strip()]
+    assert len(commands) == 2, commands
+    assert commands[0].endswith("pip install -e . && snakemake --cores 2")
+    assert commands[1].endswith('pip install -e ".[test]" && pytest -q')
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    assert 'pip install -e ".[test]" && pytest -q' in ci
+
+
+def test_config_comments_are_one_short_reason():
+    """Each comment of config.yaml gives the reason in a line (the report's configuration
+    appendix shows it beside the value); the argument behind it lives in docs/."""
+    long = [f"config.yaml:{n}: {len(c)} characters"
+            for n, c in _yaml_comments(ROOT / "config.yaml") if len(c.strip()) > 160]
+    assert not long, "\n".join(long)

@@ -22,3 +22,21 @@ def test_docs_build_without_warnings(tmp_path):
         assert name in html, name
     for page in ("quickstart", "workflow", "closeloop", "formats", "cli", "modelling", "validation", "development"):
         assert (tmp_path / "html" / f"{page}.html").exists(), page
+
+
+@pytest.mark.parametrize("name", ["ssamb.mu.mussv", "ssamb.identification.identify", "ssamb.config.load_config",
+                                  "ssamb.report.failures.root_cause", "ssamb.pin_blas_threads"])
+def test_the_examples_of_the_entry_points_run(name, monkeypatch):
+    """The Examples sections are doctests that hold (those that write no file)."""
+    import doctest
+    import importlib
+
+    monkeypatch.chdir(ROOT)
+    module, attr = name.rsplit(".", 1)
+    obj = getattr(importlib.import_module(module), attr)
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS)
+    tests = doctest.DocTestFinder().find(obj, name, globs={})
+    assert tests and tests[0].examples, f"{name} has no example"
+    for t in tests:
+        runner.run(t)
+    assert runner.failures == 0, name

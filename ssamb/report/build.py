@@ -62,7 +62,30 @@ def render_notebook(nb: nbformat.NotebookNode, out_html: str | Path, timeout_s: 
 def build_report(results_dir: str | Path, out_html: str | Path, out_ipynb: str | Path | None = None,
                  config_path: str | Path = "config.yaml", closeloop_dir: str | Path | None = None,
                  study_json: str | Path | None = None, timeout_s: int = 600) -> None:
-    """Build the full report from ``results_dir`` (needs ``summary.json`` and the stage files;
-    with ``study_json`` the assumption study too)."""
+    """Build the full report from a results folder.
+
+    Parameters
+    ----------
+    results_dir : path
+        The run's results (``summary.json`` and the stage files).
+    out_html : path
+        The self-contained HTML report, written atomically.
+    out_ipynb : path, optional
+        Also keep the executed notebook.
+    config_path : path
+        The run's configuration (its comments give the reasons in the configuration appendix).
+    closeloop_dir : path, optional
+        The default close-the-loop data set's analysis folder.
+    study_json : path, optional
+        The assumption study (``results/study/study.json``), when it has run.
+    timeout_s : int
+        Longest a section's cell may run.
+
+    Examples
+    --------
+    >>> from ssamb.report import build_report
+    >>> build_report("results", "results/report.html", config_path="config.yaml",
+    ...              closeloop_dir="results/closeloop/rig_demo")
+    """
     render_notebook(make_notebook(results_dir, config_path, closeloop_dir, study_json), out_html,
                     timeout_s=timeout_s, out_ipynb=out_ipynb)

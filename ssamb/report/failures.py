@@ -51,6 +51,7 @@ def root_cause(stage: str, reason: str) -> tuple[str, str]:
 
     Examples
     --------
+    >>> from ssamb.report.failures import root_cause
     >>> root_cause("mu/all", "Failed: a.json: stage assemble failed: Failed: b.npz: stage select "
     ...            "failed: no stable loop")
     ('select', 'no stable loop')

@@ -412,6 +412,28 @@ def simulate(cfg: Mapping, experiment: str | None = None, options: SimOptions | 
         Name of an experiment in ``cfg['experiments']`` (duration, start and excitation).
     options : SimOptions, optional
         Run options; keyword arguments (the fields of :class:`SimOptions`) override them.
+
+    Returns
+    -------
+    SimResult
+        ``data``: the measured-data columns (``docs/formats.md``) and the true states, sampled
+        at the controller rate; ``meta``: the experiment, its excitation, the equilibrium, the
+        self-sensing calibration, the delevitation time (None when the rotor stays levitated),
+        seeds and the config hash. ``save(path)`` writes both.
+
+    Raises
+    ------
+    ssamb.errors.InputError
+        An experiment, effect or option that cannot be simulated, named in one line.
+
+    Examples
+    --------
+    >>> from ssamb.config import load_config
+    >>> from ssamb.sim import simulate
+    >>> res = simulate(load_config(), "levitate", progress=False)   # lift-off from the backup bearing
+    >>> res.meta["delevitation_s"] is None                           # it stays levitated
+    True
+    >>> res.save("levitate.npz")                                     # levitate.npz + levitate.json
     """
     opts = replace(options or SimOptions(), **kwargs)
     if not isinstance(opts.effects, tuple):
