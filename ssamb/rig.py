@@ -511,7 +511,8 @@ def draw_experiment(kind: str, rng: np.random.Generator, duration_s: tuple = (1.
     if kind == "sweep":
         return {"experiment": {"kind": "sweep", "point": "position", "axis": axis,
                                "amplitude_m": float(rng.uniform(15e-6, 50e-6)),
-                               "f_start_hz": float(rng.uniform(5.0, 15.0)), "f_stop_hz": float(rng.uniform(50.0, 150.0)),
+                               "f_start_hz": float(rng.uniform(5.0, 15.0)),
+                               "f_stop_hz": float(rng.uniform(50.0, 150.0)),
                                "sweep_duration_s": T, "law": "linear"}, "duration_s": T}
     if kind == "rest":
         return {"experiment": {"kind": "none", "seed": seed}, "duration_s": T}
@@ -521,7 +522,8 @@ def draw_experiment(kind: str, rng: np.random.Generator, duration_s: tuple = (1.
 def draw_effect(effect: str, rng: np.random.Generator) -> dict:
     """One library effect with parameters from the ranges a rig may have."""
     if effect == "sensor_delay":
-        return {"name": effect, "axis": str(rng.choice(["x", "y", "both"])), "delay_s": float(rng.uniform(5e-6, 100e-6))}
+        return {"name": effect, "axis": str(rng.choice(["x", "y", "both"])),
+                "delay_s": float(rng.uniform(5e-6, 100e-6))}
     if effect == "unbalance":
         f = float(rng.uniform(10.0, 200.0))
         return {"name": effect, "speed_hz": f, "mass_ecc_kgm": float(rng.uniform(0.5, 10.0)) / (2 * math.pi * f) ** 2,
