@@ -12,8 +12,10 @@ Commands (a stable interface; docs/cli.md):
 
 Every command exits with status 2 and a one-line reason on bad input (an
 :class:`ssamb.errors.InputError`: a config, scenario, effect or data-file error), and writes no
-partial file (all writers are atomic). Any other exception is a programming error and keeps its
-traceback.
+partial file (all writers are atomic). Where the outputs go is checked before any work (a folder
+that cannot be written, a path under a file, an output that is a folder); an existing output
+(a ``.json`` sidecar included) is overwritten only with ``--force``. Any other exception is a
+programming error and keeps its traceback.
 """
 from __future__ import annotations
 
@@ -42,11 +44,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, dotted key (repeatable)")
     p.add_argument("--out", required=True, help="output .npz (a .json sidecar is written beside it)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output (and its .json sidecar)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("rig", help="simulate a rig (nominal model + effects + noise) from a scenario file")
     p.add_argument("scenario", help="scenario YAML")
     p.add_argument("--out", required=True, help="output .npz in the measured-data format")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output (and its .json sidecar)")
     p.add_argument("--quiet", action="store_true")
 
     p = sub.add_parser("closeloop", help="find what the model lacks from measured data")
@@ -60,6 +64,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None,
                    help="processes for the independent replays (default: the CPUs available; the result does not "
                         "depend on it)")
+    p.add_argument("--force", action="store_true", help="replace a previous analysis in --out")
     p.add_argument("--quiet", action="store_true")
     return ap
 
@@ -69,9 +74,12 @@ def _cmd_simulate(args) -> None:
     from .errors import InputError
     from .sim import simulate
 
+    from .io import check_output_file
+
     out = Path(args.out)
     if out.suffix != ".npz":
         raise InputError(f"--out {out}: must end in .npz")
+    check_output_file(out, force=args.force)
     cfg = load_config(args.config, args.overrides)
     if args.experiment not in cfg["experiments"]:
         raise InputError(f"--experiment {args.experiment}: not in config (known: {', '.join(cfg['experiments'])})")
@@ -82,7 +90,7 @@ def _cmd_simulate(args) -> None:
 def _cmd_rig(args) -> None:
     from .rig import run_scenario
 
-    run_scenario(args.scenario, args.out, progress=not args.quiet)
+    run_scenario(args.scenario, args.out, progress=not args.quiet, force=args.force)
 
 
 def _cpus() -> int:
@@ -99,15 +107,21 @@ def _cmd_closeloop(args) -> None:
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers {args.workers}: must be at least 1")
     workers = args.workers or _cpus()
+    from .device import get_device
+    from .stages import check_closeloop_settings
+
+    dev = get_device(args.device)
+    cfg = dev.load_config(args.config)
+    check_closeloop_settings(cfg, dev, source=args.config or f"the default config of device '{dev.name}'")
     if len(args.data) == 1 and not args.hold:
-        rep = run_closeloop(args.data[0], args.out, config=args.config, progress=not args.quiet, workers=workers,
-                            device=args.device)
+        rep = run_closeloop(args.data[0], args.out, config=cfg, progress=not args.quiet, workers=workers,
+                            device=dev, force=args.force)
     else:
         from .closeloop.recordings import run_recordings
 
-        rep = run_recordings(args.data, args.hold, args.out, config=args.config, device=args.device,
-                             progress=not args.quiet, workers=workers)
-    print("\n".join(findings_text(rep)))
+        rep = run_recordings(args.data, args.hold, args.out, config=cfg, device=dev,
+                             progress=not args.quiet, workers=workers, force=args.force)
+    print("\n".join(findings_text(rep) + [f"note: {n}" for n in rep.get("notes", [])]))
 
 
 def main(argv: list[str] | None = None) -> int:

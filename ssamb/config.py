@@ -40,6 +40,8 @@ __all__ = [
     "apply_overrides",
     "config_hash",
     "get",
+    "load_capacity_n",
+    "PLAUSIBLE_RANGES",
 ]
 
 _DATA_FILES = contextlib.ExitStack()
@@ -88,12 +90,142 @@ def _schema_errors(cfg: Mapping) -> list[str]:
         elif err.validator == "additionalProperties":
             msgs.append(f"config key '{key}': {err.message} (unknown key: check the spelling)")
         else:
-            msgs.append(f"config key '{key}': {err.message}")
+            msgs.append(f"config key '{key}': {err.message}{_number_hint(err.instance)}")
+    return msgs
+
+
+def _number_hint(value: Any) -> str:
+    """A hint for a number YAML read as text: YAML 1.1 (PyYAML, Snakemake) reads ``1e30`` and
+    ``3.e-4`` as strings; a float needs a dot and a signed exponent (``1.0e+30``)."""
+    if not isinstance(value, str):
+        return ""
+    try:
+        float(value)
+    except ValueError:
+        return ""
+    return f" (YAML reads {value} as text; write a number with a dot and a signed exponent, e.g. 1.0e+30)"
+
+
+#: plausible ranges (SI) of the physical values a unit error moves by orders of magnitude: wide
+#: enough for any radial AMB from a small pump's to a compressor's, narrow enough that a value
+#: in mm, g, mA or kHz falls outside. Key -> (lowest, highest).
+PLAUSIBLE_RANGES = {
+    "table1.airgap_m": (2e-5, 5e-3),
+    "table1.backup_clearance_m": (1e-5, 5e-3),
+    "table1.mass_kg": (1e-3, 1e5),
+    "table1.i_bias_a": (1e-3, 500.0),
+    "table1.r_coil_ohm": (1e-4, 1e3),
+    "table1.v_supply_v": (1.0, 1e4),
+    "table1.f_pwm_hz": (100.0, 1e6),
+    "table1.coil_turns": (1.0, 1e5),
+    "table1.mu_r": (1.0, 1e6),
+    "table1.axial_length_m": (1e-3, 2.0),
+    "table1.r_journal_inner_m": (0.0, 1.0),
+    "table1.r_journal_outer_m": (1e-3, 1.0),
+    "table1.r_pole_m": (1e-3, 1.0),
+    "table1.r_backiron_inner_m": (1e-3, 1.0),
+    "table1.r_stator_outer_m": (1e-3, 2.0),
+    "table1.pole_width_m": (1e-4, 1.0),
+    "gravity_m_per_s2": (0.0, 100.0),
+    "magnetics.b_knee_t": (0.1, 5.0),
+    "magnetics.lamination_thickness_m": (1e-5, 5e-3),
+    "magnetics.iron_conductivity_s_per_m": (1e3, 1e8),
+    "amplifier.i_ref_max_a": (1e-3, 1e3),
+    "controller.fs_hz": (100.0, 1e7),
+    "controller.u_max_a": (1e-3, 500.0),
+    "sensors.x_bandwidth_hz": (10.0, 1e7),
+    "converters.position_adc_range_m": (1e-5, 0.1),
+    "converters.current_adc_range_a": (1e-2, 1e4),
+    "simulation.settle_s": (0.0, 10.0),
+}
+
+_MU0 = 4e-7 * 3.141592653589793
+
+
+def load_capacity_n(cfg: Mapping) -> float:
+    r"""An upper bound of the static force (N) one axis of the bearing can exert.
+
+    The pulling magnet at its largest current :math:`i = i_0 + \min(u_{max}, i_0)` (the other at
+    :math:`i_0 - \min(u_{max}, i_0) \ge 0` pulls against it, here neglected), its two poles in
+    series across two airgaps :math:`g` with no iron reluctance and no saturation,
+    :math:`B = \mu_0 N i / (2 g)`, each pole face :math:`A` = ``pole_width_m`` x
+    ``axial_length_m`` pulling :math:`B^2 A / (2\mu_0)` at the pole half-angle :math:`\alpha`:
+
+    .. math:: F_{max} = \frac{B^2 A}{\mu_0} \cos\alpha
+
+    Iron, saturation and the other magnet only lower the force, so a load above this bound can
+    never be carried (the simulator's equilibrium: 190 N against this bound's 198 N for the
+    default config).
+    """
+    import math
+
+    t1, geo = cfg["table1"], cfg["geometry"]
+    n_turns = float(t1["coil_turns"]) * float(geo["coils_per_magnet"])
+    i_max = float(t1["i_bias_a"]) + min(float(cfg["controller"]["u_max_a"]), float(t1["i_bias_a"]))
+    b = _MU0 * n_turns * i_max / (2.0 * float(t1["airgap_m"]))
+    area = float(t1["pole_width_m"]) * float(t1["axial_length_m"])
+    return b * b * area / _MU0 * math.cos(math.radians(float(geo["pole_half_angle_deg"])))
+
+
+def _unit_of_key(key: str) -> str:
+    leaf = key.rsplit(".", 1)[-1]
+    for suffix, unit in (("_m_per_s2", "m/s^2"), ("_s_per_m", "S/m"), ("_ohm", "ohm"), ("_kg", "kg"),
+                         ("_hz", "Hz"), ("_m", "m"), ("_a", "A"), ("_v", "V"), ("_t", "T"), ("_s", "s")):
+        if leaf.endswith(suffix):
+            return f" {unit}"
+    return ""
+
+
+def _plausibility_errors(cfg: Mapping) -> list[str]:
+    """Values no radial AMB has (:data:`PLAUSIBLE_RANGES`) and loads this bearing cannot carry:
+    a unit error named by its key before anything is simulated."""
+    msgs = []
+    for key, (lo, hi) in PLAUSIBLE_RANGES.items():
+        try:
+            v = get(cfg, key)
+        except ConfigError:
+            continue
+        if not lo <= v <= hi:
+            msgs.append(f"config key '{key}': {v:g}{_unit_of_key(key)} lies outside the plausible range "
+                        f"[{lo:g}, {hi:g}]{_unit_of_key(key)} of a radial AMB (a unit off by a factor 1000?)")
+    if msgs:
+        return msgs
+    t1 = cfg["table1"]
+    weight = float(cfg["weight_share"]) * float(t1["mass_kg"]) * float(cfg["gravity_m_per_s2"])
+    cap = load_capacity_n(cfg)
+    if weight > cap:
+        msgs.append(f"config key 'table1.mass_kg': the bearing's share of the weight, weight_share x mass_kg x "
+                    f"gravity_m_per_s2 = {weight:.4g} N, exceeds the most its magnets can pull, {cap:.4g} N (an upper "
+                    "bound from table1.coil_turns x geometry.coils_per_magnet turns at table1.i_bias_a + "
+                    "controller.u_max_a across table1.airgap_m): no levitated equilibrium")
+    i_drive = float(t1["v_supply_v"]) / float(t1["r_coil_ohm"])
+    if i_drive < float(t1["i_bias_a"]):
+        msgs.append(f"config key 'table1.r_coil_ohm': {t1['r_coil_ohm']:g} ohm with table1.v_supply_v = "
+                    f"{t1['v_supply_v']:g} V drives at most {i_drive:.3g} A, less than the bias table1.i_bias_a = "
+                    f"{t1['i_bias_a']:g} A (resistance in milliohm?)")
+    kp_min = 0.1 * float(t1["i_bias_a"]) / float(t1["airgap_m"])
+    if float(t1["pid_kp_a_per_m"]) < kp_min:
+        msgs.append(f"config key 'table1.pid_kp_a_per_m': {t1['pid_kp_a_per_m']:g} A/m is below a tenth of "
+                    f"table1.i_bias_a / table1.airgap_m = {10 * kp_min:.4g} A/m, the least a PD needs to overcome "
+                    "the magnets' negative stiffness (gain in A/mm?)")
+    airgap = float(t1["airgap_m"])
+    i_lim = float(cfg["amplifier"]["i_ref_max_a"])
+    for name, exp in cfg["experiments"].items():
+        exc = exp["excitation"]
+        amp_m, amp_a = exc.get("amplitude_m"), exc.get("amplitude_a")
+        if isinstance(amp_m, (int, float)) and not isinstance(amp_m, bool) and amp_m > airgap:
+            msgs.append(f"config key 'experiments.{name}.excitation.amplitude_m': {amp_m:g} m exceeds the airgap "
+                        f"table1.airgap_m = {airgap:g} m (amplitude in mm or um?)")
+        if isinstance(amp_a, (int, float)) and not isinstance(amp_a, bool) and amp_a > i_lim:
+            msgs.append(f"config key 'experiments.{name}.excitation.amplitude_a': {amp_a:g} A exceeds the amplifier's "
+                        f"current clamp amplifier.i_ref_max_a = {i_lim:g} A (amplitude in mA?)")
     return msgs
 
 
 def _physical_errors(cfg: Mapping) -> list[str]:
-    msgs = []
+    msgs = _plausibility_errors(cfg)
+    if msgs:
+        return msgs
     t1 = cfg["table1"]
     if t1["backup_clearance_m"] >= t1["airgap_m"]:
         msgs.append(
@@ -196,7 +328,11 @@ def _excitation_errors(cfg: Mapping) -> list[str]:
         try:
             make_excitation(exp["excitation"], float(cfg["controller"]["fs_hz"]), exp["duration_s"], cfg["seed"])
         except ValueError as exc:
-            msgs.append(f"config key 'experiments.{name}.excitation': {exc}")
+            text = str(exc)
+            if text.startswith("duration_s: "):
+                msgs.append(f"config key 'experiments.{name}.duration_s': {text[len('duration_s: '):]}")
+            else:
+                msgs.append(f"config key 'experiments.{name}.excitation': {text}")
     return msgs
 
 
@@ -228,10 +364,18 @@ def validate_config(cfg: Mapping) -> None:
 
 
 def _parse_value(text: str) -> Any:
+    """An override's value as YAML reads it, except that a number YAML 1.1 reads as text
+    (``1e30``, ``5e-4``: no dot or no exponent sign) is a number, as a user typing it means."""
     try:
-        return yaml.safe_load(text)
+        value = yaml.safe_load(text)
     except yaml.YAMLError:
         return text
+    if isinstance(value, str) and value.strip().lower().lstrip("+-") not in ("nan", "inf", "infinity"):
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    return value
 
 
 def apply_overrides(cfg: Mapping, overrides: Iterable[str] | Mapping[str, Any] | None) -> dict:
@@ -269,16 +413,64 @@ def _split_override(text: str) -> tuple[str, Any]:
 _YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
+def _duplicate_key(node, path: tuple = (), seen_nodes: set | None = None) -> tuple[str, int, int] | None:
+    """The first key that appears twice in one mapping of a composed YAML document, as
+    ``(dotted key, first line, second line)``; None when every mapping's keys are distinct.
+
+    YAML itself leaves a repeated key to the reader, and PyYAML keeps the last value silently:
+    a value written twice in a config (one of them forgotten) would change the result unnoticed.
+    """
+    seen_nodes = set() if seen_nodes is None else seen_nodes
+    if id(node) in seen_nodes:          # an alias: walked where it was defined
+        return None
+    seen_nodes.add(id(node))
+    if isinstance(node, yaml.MappingNode):
+        lines: dict = {}
+        for key, value in node.value:
+            name = str(key.value) if isinstance(key, yaml.ScalarNode) else "?"
+            if isinstance(key, yaml.ScalarNode) and name != "<<":
+                if name in lines:
+                    return ".".join(path + (name,)), lines[name], key.start_mark.line + 1
+                lines[name] = key.start_mark.line + 1
+            found = _duplicate_key(value, path + (name,), seen_nodes)
+            if found:
+                return found
+    elif isinstance(node, yaml.SequenceNode):
+        for i, value in enumerate(node.value):
+            head = path[:-1] + (f"{path[-1]}[{i}]",) if path else (f"[{i}]",)
+            found = _duplicate_key(value, head, seen_nodes)
+            if found:
+                return found
+    return None
+
+
 def read_yaml_mapping(path: Path, label: str, error: type = ValueError) -> dict:
-    """The mapping in a YAML file; ``error(f"{label}: ...")`` when the file is missing, is not
-    valid YAML or does not hold a mapping at its top level."""
+    """The mapping in a YAML file; ``error(f"{label}: ...")`` when the file is missing, is a
+    folder, cannot be read, is not UTF-8 text, is not valid YAML, repeats a key in a mapping
+    (named, with both lines) or does not hold a mapping at its top level."""
+    path = Path(path)
     if not path.exists():
         raise error(f"{label}: not found")
+    if path.is_dir():
+        raise error(f"{label}: is a folder, not a YAML file")
     try:
         with open(path, encoding="utf-8") as fh:
-            data = yaml.load(fh, Loader=_YAML_LOADER)
+            loader = _YAML_LOADER(fh)
+            try:
+                node = loader.get_single_node()
+                dup = _duplicate_key(node) if node is not None else None
+                data = loader.construct_document(node) if node is not None else None
+            finally:
+                loader.dispose()
     except yaml.YAMLError as exc:
         raise error(f"{label}: not valid YAML ({' '.join(str(exc).split())})") from None
+    except UnicodeDecodeError:
+        raise error(f"{label}: not a UTF-8 text (YAML) file") from None
+    except OSError as exc:
+        raise error(f"{label}: cannot be read ({exc.strerror or type(exc).__name__})") from None
+    if dup is not None:
+        raise error(f"{label}: key '{dup[0]}' appears twice (lines {dup[1]} and {dup[2]}); a YAML reader "
+                    "would keep the last value silently")
     if not isinstance(data, dict):
         raise error(f"{label}: top level must be a mapping")
     return data

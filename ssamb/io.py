@@ -41,6 +41,8 @@ __all__ = [
     "DataError",
     "MEASURED_COLUMNS",
     "atomic_path",
+    "check_output_dir",
+    "check_output_file",
     "replace_dir",
     "save_npz",
     "load_npz",
@@ -104,6 +106,68 @@ def check_replaceable(target: str | Path, owned: Callable[[Path], bool], label: 
     if foreign:
         raise InputError(f"{label} {target}: holds files this command does not write ({', '.join(foreign[:3])}"
                          f"{', ...' if len(foreign) > 3 else ''}); give a new or empty directory")
+
+
+def _exists(path: Path) -> bool:
+    try:
+        return path.exists()
+    except OSError:              # a folder on the way that cannot be searched
+        return True
+
+
+def _check_writable(folder: Path, label: str, shown: Path) -> None:
+    """Raise :class:`InputError` unless a file can be created in ``folder`` or, when it does not
+    exist yet, in its nearest existing ancestor (which must be a folder). The probe creates and
+    deletes a hidden temporary file, exactly what the atomic writers do: a read-only or full
+    file system, a missing permission, an immutable folder all fail it."""
+    anc = folder
+    while not _exists(anc):
+        anc = anc.parent
+    if not anc.is_dir():
+        raise InputError(f"{label} {shown}: '{anc}' is a file, not a folder")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=anc, prefix=".ssamb-probe-")
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise InputError(f"{label} {shown}: cannot write in the folder '{anc}' "
+                         f"({exc.strerror or type(exc).__name__})") from None
+
+
+def check_output_file(path: str | Path, force: bool = False, sidecar: bool = True, label: str = "--out") -> None:
+    """Check where an output file (and its ``.json`` sidecar) goes, before any work.
+
+    Raises :class:`InputError` (one line, naming ``label`` and the path) when the path is a
+    folder, lies under a file, cannot be written (read-only folder), or when the file or its
+    sidecar exists and ``force`` is false: a command never overwrites a file it did not create
+    in that call unless told to. A sidecar that is a folder is an error even with ``force``.
+    """
+    path = Path(path)
+    targets = [path] + ([path.with_suffix(".json")] if sidecar else [])
+    for t in targets:
+        if t.is_dir():
+            what = "" if t == path else f"its sidecar {t.name} "
+            raise InputError(f"{label} {path}: {what}is a folder")
+    _check_writable(path.parent, label, path)
+    if not force:
+        existing = [t for t in targets if t.exists()]
+        if existing:
+            names = " and ".join(f"'{t}'" for t in existing)
+            raise InputError(f"{label} {path}: {names} exist{'s' if len(existing) == 1 else ''}; "
+                             "give --force to overwrite")
+
+
+def check_output_dir(target: str | Path, owned: Callable[[Path], bool], force: bool = False,
+                     label: str = "--out") -> None:
+    """Check an output folder before any work: :func:`check_replaceable` (a file, or a folder
+    with files the command does not write, is an error even with ``force``); a folder with a
+    previous output needs ``force``; its parent must be writable (the new folder is built
+    beside it and swapped in, :func:`replace_dir`)."""
+    target = Path(target)
+    check_replaceable(target, owned, label)
+    if not force and target.is_dir() and any(target.iterdir()):
+        raise InputError(f"{label} {target}: holds a previous output; give --force to replace it")
+    _check_writable(target.parent, label, target)
 
 
 def replace_dir(new: str | Path, target: str | Path, owned: Callable[[Path], bool], label: str = "--out") -> None:
@@ -202,9 +266,14 @@ def save_npz(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any
     payload = {k: np.asarray(v) for k, v in arrays.items()}
     if meta is not None:
         payload["meta"] = np.asarray(json.dumps(meta, default=jsonable, sort_keys=True))
+    if meta is None:
+        with atomic_path(path, suffix=".npz") as tmp:
+            _write_npz(tmp, payload, compress)
+        return
+    # both files written to temporary names first: a sidecar that cannot be written leaves
+    # neither file (the sidecar is renamed into place first, the archive last)
     with atomic_path(path, suffix=".npz") as tmp:
         _write_npz(tmp, payload, compress)
-    if meta is not None:
         write_json(path.with_suffix(".json"), meta)
 
 
@@ -368,6 +437,8 @@ def read_csv_columns(path: str | Path) -> dict[str, np.ndarray]:
             header = next(csv.reader(fh), None)
     except UnicodeDecodeError:
         raise DataError(f"{path}: not a UTF-8 text (CSV) file") from None
+    except OSError as exc:              # a directory, no permission, an I/O error
+        raise DataError(f"{path}: cannot be read ({exc.strerror or type(exc).__name__})") from None
     names = [h.strip() for h in header or []]
     if not any(names):
         raise DataError(f"{path}: empty (a CSV data file starts with a header row of column names)")

@@ -295,15 +295,21 @@ def _scenario_experiment(src: str, sc: Mapping, cfg: Mapping) -> tuple[dict, int
     try:
         make_excitation(spec, float(cfg["controller"]["fs_hz"]), duration, seed)
     except ValueError as exc:
-        raise ScenarioError(f"{src}: key 'experiment': {exc}") from None
+        text = str(exc)
+        if text.startswith("duration_s: "):
+            raise ScenarioError(f"{src}: key 'duration_s': {text[len('duration_s: '):]}") from None
+        raise ScenarioError(f"{src}: key 'experiment': {text}") from None
     return spec, seed, duration, start
 
 
 def _scenario_effects(src: str, effects_raw: Any, base: Path) -> list[dict]:
     """The effects of key ``effects``, each validated and flat
     (:func:`ssamb.sim.effects.validate_effect`); an ``external_force`` file is made absolute,
-    relative to ``base``, and must exist."""
+    relative to ``base``, and read and checked here
+    (:func:`ssamb.sim.effects.external_force.read_force_file`),
+    before any simulation."""
     from .sim.effects import EffectError, validate_effect
+    from .sim.effects.external_force import read_force_file
 
     if not isinstance(effects_raw, list):
         raise ScenarioError(f"{src}: key 'effects' must be a list of effects")
@@ -320,9 +326,42 @@ def _scenario_effects(src: str, effects_raw: Any, base: Path) -> list[dict]:
             f = f if f.is_absolute() else base / f
             if not f.exists():
                 raise ScenarioError(f"{src}: key 'effects[{i}].file': '{f}' not found")
+            try:
+                read_force_file(f)
+            except InputError as exc:
+                raise ScenarioError(f"{src}: key 'effects[{i}].file': {exc}") from None
             flat["file"] = str(f)
         effects.append(flat)
     return effects
+
+
+def _check_loads(src: str, effects: list[dict], cfg: Mapping) -> None:
+    """The forces of the effects at t = 0 (where the simulation starts from the static
+    equilibrium that carries them, with the weight) against the bearing's load capacity
+    (:func:`ssamb.config.load_capacity_n`, an upper bound): an effect the bearing could never
+    carry is named by its key before anything is simulated."""
+    from .config import load_capacity_n
+    from .sim.effects import apply_effects
+
+    cap = load_capacity_n(cfg)
+    weight = float(cfg["weight_share"]) * float(cfg["table1"]["mass_kg"]) * float(cfg["gravity_m_per_s2"])
+    total = np.array([0.0, -weight])
+    for i, e in enumerate(effects):
+        _, fx, fy = apply_effects([e], np.zeros(1))
+        f = np.array([fx[0], fy[0]])
+        total += f
+        if np.hypot(*f) > cap:
+            hint = ""
+            if e["name"] == "unbalance":
+                hint = (f"; m e w^2 at speed_hz = {e['speed_hz']:g} Hz with mass_ecc_kgm = {e['mass_ecc_kgm']:g} kg m"
+                        f" (a speed in rpm? {e['speed_hz']:g} rpm = {e['speed_hz'] / 60:.4g} Hz)")
+            raise ScenarioError(f"{src}: key 'effects[{i}]': effect '{e['name']}' pulls {np.hypot(*f):.4g} N at "
+                                f"t = 0, more than the bearing's load capacity {cap:.4g} N (an upper bound; the "
+                                f"simulation starts from the static equilibrium that carries it){hint}")
+    if max(abs(total)) > cap:
+        raise ScenarioError(f"{src}: key 'effects': the effects' forces at t = 0 with the weight load the bearing "
+                            f"with ({total[0]:.4g}, {total[1]:.4g}) N, more than its load capacity {cap:.4g} N "
+                            "(an upper bound; the simulation starts from the static equilibrium that carries it)")
 
 
 def _output_dtype(src: str, output: Any) -> str:
@@ -360,6 +399,7 @@ def load_scenario(path: str | Path) -> dict:
     nominal, cfg = _scenario_configs(src, sc, base)
     spec, seed, duration, start = _scenario_experiment(src, sc, cfg)
     effects = _scenario_effects(src, sc.get("effects") or [], base)
+    _check_loads(src, effects, cfg)
     noise = _validate_noise(src, sc.get("noise"))
     acquisition = validate_acquisition(sc.get("acquisition"), src, float(cfg["controller"]["fs_hz"]),
                                        error=ScenarioError)
@@ -426,7 +466,7 @@ def rig_data(scenario: Mapping, progress: bool = False) -> tuple[dict, dict]:
     return logged, meta
 
 
-def run_scenario(scenario_path: str | Path, out_path: str | Path, progress: bool = True) -> None:
+def run_scenario(scenario_path: str | Path, out_path: str | Path, progress: bool = True, force: bool = False) -> None:
     """Simulate the rig described by a scenario file and write its data (atomically).
 
     Parameters
@@ -438,22 +478,34 @@ def run_scenario(scenario_path: str | Path, out_path: str | Path, progress: bool
         written beside it).
     progress : bool
         Show the simulator's progress bar.
+    force : bool
+        Overwrite an existing output (or its sidecar); without, an existing one is an error.
 
     Raises
     ------
     ScenarioError
         Invalid scenario (nothing is written).
+    ssamb.errors.InputError
+        The output cannot go where ``out_path`` says (checked before the scenario is read).
 
     Examples
     --------
     >>> from ssamb.rig import run_scenario
     >>> run_scenario("resources/scenarios/rig_demo.yaml", "rig.npz")   # as python -m ssamb rig
     """
+    from .io import check_output_file
+
     out = Path(out_path)
     if out.suffix != ".npz":
         raise ScenarioError(f"--out {out}: must end in .npz")
+    check_output_file(out, force=force)
     sc = load_scenario(scenario_path)
-    arrays, meta = rig_data(sc, progress=progress)
+    try:
+        arrays, meta = rig_data(sc, progress=progress)
+    except ScenarioError:
+        raise
+    except InputError as exc:          # the simulator's (no equilibrium, memory): name the scenario
+        raise ScenarioError(f"{scenario_path}: {exc}") from None
     if sc.get("dtype", "float64") == "float32":
         arrays = {k: (v.astype(np.float32) if k not in ("t", "fs_hz") else v) for k, v in arrays.items()}
     save_measured_compressed(out, arrays, meta)

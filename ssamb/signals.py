@@ -625,6 +625,7 @@ def make_excitation(
         duration_s = _real("duration_s", duration_s, positive=True)
     elif kind in ("none", "pulses", "step"):
         raise ValueError(f"duration_s: required for kind '{kind}'")
+    _check_length(kind, spec, fs_hz, duration_s)
     params: dict[str, Any] = {"kind": kind, "fs_hz": fs_hz}
     t, x, ms = _BUILDERS[kind](spec, fs_hz, duration_s, amplitude, used_seed, params)
     params["duration_s"] = x.size / fs_hz
@@ -635,6 +636,38 @@ def make_excitation(
         params["seed"] = used_seed
     return Excitation(t=t, x=x, kind=kind, amplitude=amplitude, unit=unit, seed=used_seed,
                       params=params, multisine=ms)
+
+
+#: the longest excitation built (samples): 20 minutes at 83.3 kHz. A simulation keeps every sample
+#: of some 50 signals in memory (about 400 bytes per sample, 40 GB at this length), so a longer
+#: one is a unit error or a resource bomb; the limit is checked before anything is allocated.
+MAX_SAMPLES = 10**8
+
+
+def _check_length(kind: str, spec: Mapping, fs_hz: float, duration_s: float | None) -> None:
+    """Raise ValueError naming the key when the excitation would exceed :data:`MAX_SAMPLES`
+    (``duration_s``, a multisine's period ``fs_hz / f_resolution_hz`` and its ``periods``, a
+    sweep's ``sweep_duration_s``), before any array is allocated."""
+    def num(key, default=None):
+        v = spec.get(key, default)
+        ok = isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(float(v)) and float(v) > 0
+        return float(v) if ok else None
+
+    checks = []
+    if duration_s is not None:
+        checks.append(("duration_s", f"{duration_s:g} s", duration_s * fs_hz))
+    if kind == "multisine" and num("f_resolution_hz", 1.0) is not None:
+        n_per = fs_hz / num("f_resolution_hz", 1.0)
+        checks.append(("excitation key 'f_resolution_hz'", f"one period of 1/{num('f_resolution_hz', 1.0):g} s", n_per))
+        if duration_s is None and num("periods") is not None:
+            checks.append(("excitation key 'periods'", f"{num('periods'):g} periods", num("periods") * n_per))
+    if kind == "sweep" and duration_s is None and num("sweep_duration_s") is not None:
+        checks.append(("excitation key 'sweep_duration_s'", f"{num('sweep_duration_s'):g} s",
+                       num("sweep_duration_s") * fs_hz))
+    for name, what, n in checks:
+        if n > MAX_SAMPLES:
+            raise ValueError(f"{name}: {what} at {fs_hz:g} Hz is {n:.3g} samples, more than the {MAX_SAMPLES:.0e} "
+                             "a simulation can hold (it keeps every sample in memory, about 400 bytes each)")
 
 
 def _check_spec(spec) -> str:

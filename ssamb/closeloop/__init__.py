@@ -106,7 +106,8 @@ def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, workers: int = 1, devi
     return _analyse(arrays, meta, cfg, workers=workers, device=device)[0]
 
 
-def run_closeloop(data_path, out_dir, config=None, progress: bool = True, workers: int = 1, device="amb") -> dict:
+def run_closeloop(data_path, out_dir, config=None, progress: bool = True, workers: int = 1, device="amb",
+                  force: bool = False) -> dict:
     """Analyse a data file and write ``out_dir/closeloop.json`` and figures.
 
     Everything is computed and drawn into a fresh temporary directory beside ``out_dir``,
@@ -131,6 +132,9 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True, worker
         Processes for the independent replays (:func:`analyse`).
     device : str or ssamb.device.Device
         The device the data come from (default the AMB).
+    force : bool
+        Replace a previous analysis in ``out_dir``; without, a non-empty ``out_dir`` is an error
+        (:func:`ssamb.io.check_output_dir`, checked before anything is read).
 
     Returns
     -------
@@ -138,14 +142,14 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True, worker
         The ``closeloop.json`` content.
     """
     from ..device import get_device
-    from ..io import check_replaceable, replace_dir, write_json
+    from ..io import check_output_dir, replace_dir, write_json
     from .figures import make_figures
 
     def owned(p: Path) -> bool:
         return p.is_file() and (p.name == "closeloop.json" or p.suffix == ".png")
 
     out_dir = Path(out_dir)
-    check_replaceable(out_dir, owned)
+    check_output_dir(out_dir, owned, force)
     dev = get_device(device)
     cfg = dict(config) if isinstance(config, Mapping) else dev.load_config(config)
     arrays, meta = dev.load(data_path)

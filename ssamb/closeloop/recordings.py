@@ -317,7 +317,7 @@ def _brief(rep: dict) -> dict:
 
 
 def run_recordings(fit_paths, hold_paths, out_dir, config=None, device="amb", progress: bool = True, workers: int = 1,
-                   reports: Mapping[str, str] | None = None) -> dict:
+                   reports: Mapping[str, str] | None = None, force: bool = False) -> dict:
     """Analyse recording files (:func:`analyse_recordings`) and write ``out_dir/closeloop.json``
     and figures (replacing ``out_dir`` whole, as :func:`ssamb.closeloop.run_closeloop` does).
 
@@ -334,6 +334,8 @@ def run_recordings(fit_paths, hold_paths, out_dir, config=None, device="amb", pr
     workers : int
     reports : mapping, optional
         ``name -> closeloop.json path`` of fitting recordings analysed already.
+    force : bool
+        Replace a previous analysis in ``out_dir`` (:func:`ssamb.io.check_output_dir`).
 
     Returns
     -------
@@ -346,7 +348,7 @@ def run_recordings(fit_paths, hold_paths, out_dir, config=None, device="amb", pr
 
     from ..device import get_device
     from ..errors import InputError
-    from ..io import check_replaceable, read_json, replace_dir, write_json
+    from ..io import check_output_dir, read_json, replace_dir, write_json
     from .figures import make_recording_figures
 
     def owned(p: Path) -> bool:
@@ -354,7 +356,8 @@ def run_recordings(fit_paths, hold_paths, out_dir, config=None, device="amb", pr
 
     dev = get_device(device)
     out_dir = Path(out_dir)
-    check_replaceable(out_dir, owned)
+    check_output_dir(out_dir, owned, force)
+
     def named(paths) -> list:
         return list(paths.items()) if isinstance(paths, Mapping) else [(Path(p).stem, p) for p in paths]
 

@@ -336,6 +336,42 @@ def _experiment(cfg: Mapping, experiment: str | None, opts: SimOptions) -> dict:
     return exp
 
 
+#: memory a simulation holds per controller sample (bytes): the kernel's outputs, the drive and
+#: noise arrays and the saved file's copies (about 380 measured on a 2 s run), with a margin
+BYTES_PER_SAMPLE = 450
+
+
+def _available_memory() -> int | None:
+    """Memory available to a new allocation (bytes): ``MemAvailable`` of ``/proc/meminfo`` (Linux),
+    else the free physical pages; None when the system tells neither."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(n_samples: int, fs_hz: float, experiment: str | None) -> None:
+    """Raise :class:`ssamb.config.ConfigError` before a simulation of ``n_samples`` controller
+    samples (pre-roll included) that needs more memory than is available
+    (:data:`BYTES_PER_SAMPLE` each), naming the experiment's duration."""
+    need = n_samples * BYTES_PER_SAMPLE
+    avail = _available_memory()
+    if avail is not None and need > avail:
+        name = f"experiment '{experiment}'" if experiment else "the simulation"
+        raise ConfigError(f"{name}: duration_s with the pre-roll simulation.settle_s is {n_samples / fs_hz:.4g} s "
+                          f"({n_samples:.3g} samples), which needs about {need / 2**30:.3g} GiB of memory; "
+                          f"{avail / 2**30:.3g} GiB are available (a shorter duration_s or a larger machine)")
+
+
 def _drive(cfg: Mapping, par: AMBParams, exp: dict, opts: SimOptions, seed: int, experiment: str | None):
     """Drive arrays (references, injections, forces) over pre-roll and record, kernel overrides."""
     fs = par.fs_hz
@@ -352,6 +388,7 @@ def _drive(cfg: Mapping, par: AMBParams, exp: dict, opts: SimOptions, seed: int,
     if exp["start"] == "rest":
         settle = 0.0
     n_settle = int(round(settle * fs))
+    check_memory(n_settle + n, fs, experiment)
     t_all = (np.arange(n_settle + n) - n_settle) / fs
     ov, f_x, f_y = apply_effects(opts.effects, np.maximum(t_all, 0.0), opts.effects_base_dir)
     force_info = None

@@ -222,7 +222,19 @@ class AMB(Device):
 
         validate_measured(arrays, source)
 
+    def notes(self, arrays: Mapping, meta: Mapping, cfg: Mapping) -> list[str]:
+        """Valid but suspicious data (x and y swapped, a channel that never moves or is clipped,
+        ...): :func:`ssamb.plausibility.measured_notes`."""
+        from ..plausibility import measured_notes
+
+        return measured_notes(arrays, meta, cfg)
+
     def record(self, arrays: Mapping, meta: Mapping, cfg: Mapping, source: str) -> Record:
+        """The record, after the values no rig produces (positions in mm, currents in mA, nothing
+        excited) are refused naming the file and column (:func:`ssamb.plausibility.check_measured`)."""
+        from ..plausibility import check_measured
+
+        check_measured(arrays, cfg, source, meta)
         return record_from_arrays(arrays, meta, float(cfg["controller"]["fs_hz"]), source)
 
     def default_config(self) -> dict:

@@ -137,8 +137,10 @@ def equilibrium(par: AMBParams, packed: np.ndarray, qtab: np.ndarray | None = No
                 break
     except ValueError:
         raise ConfigError(
-            f"no levitated equilibrium: the control current would exceed u_max_a = {par.u_max_a} A "
-            f"(load {tx:.3g} N in x, {ty:.3g} N in y)") from None
+            f"no levitated equilibrium: the control current would exceed controller.u_max_a = {par.u_max_a} A "
+            f"(load {tx:.3g} N in x, {ty:.3g} N in y: the weight from table1.mass_kg, gravity_m_per_s2 and "
+            "weight_share plus the effects' forces at t = 0; the magnets' pull from table1.i_bias_a, "
+            "table1.airgap_m, table1.coil_turns, geometry.coils_per_magnet and table1.mu_r)") from None
     cur = np.array([i0 + uy, i0 - uy, i0 + ux, i0 - ux])
     phis = circuit.fluxes(cur)
     duty = 0.5 + par.r_coil_ohm * cur / (2 * par.v_supply_v)

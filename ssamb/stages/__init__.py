@@ -30,7 +30,7 @@ import numpy as np
 
 from ..model_io import Failed, write_failed
 
-__all__ = ["NUMERICAL_FAILURES", "run_guarded", "job_log"]
+__all__ = ["NUMERICAL_FAILURES", "run_guarded", "job_log", "check_closeloop_settings"]
 
 #: what a stage may fail with on legitimate data (numerics, physics, an upstream failure) --
 #: programming errors (TypeError, KeyError, AttributeError, ...) are never caught
@@ -102,3 +102,21 @@ def job_log(path: str, stage: str):
             raise
         finally:
             sys.stdout, sys.stderr = saved
+
+
+def check_closeloop_settings(cfg, device="amb", source: str | None = None) -> None:
+    """Check a config's ``closeloop`` section as an analysis reads it (its settings and the
+    calibrated parameters' keys); raise :class:`ssamb.config.ConfigError` naming the key, and
+    ``source`` (the config file) when given. The command line and the workflow call it while
+    they read the config, before any analysis."""
+    from ..closeloop.calibration import parameter_specs
+    from ..closeloop.settings import settings_from_config
+    from ..config import ConfigError
+    from ..device import get_device
+
+    try:
+        parameter_specs(cfg, settings_from_config(cfg, get_device(device)).calibration or {})
+    except ConfigError as exc:
+        if source is None:
+            raise
+        raise ConfigError(f"{source}: {exc}") from None

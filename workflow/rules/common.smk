@@ -7,8 +7,12 @@
 # "runs/<name>/"); a rule reads its config values from RUN_CONFIGS[wildcards.run], and every input
 # points at the run that owns it (PLAN.owner), so a stage whose inputs do not change between
 # runs is computed once.
+import os
+from pathlib import Path as _Path
+
 from ssamb.channels import SUBSYSTEMS
-from ssamb.config import ConfigError, validate_config
+from ssamb.config import ConfigError, read_yaml_mapping, validate_config
+from ssamb.stages import check_closeloop_settings
 from ssamb.scenarios import Plan, run_configs, run_prefix, sim_config as _sim_config, study_variants
 
 def canonical(obj):
@@ -29,20 +33,45 @@ _canonical = canonical(config)
 config.clear()
 config.update(_canonical)
 
+#: the config files this invocation merged (the Snakefile's and every --configfile), for messages
+CONFIG_FILES = list(dict.fromkeys(os.path.relpath(f) for f in workflow.configfiles)) or ["config.yaml"]
+
+
+def _stop(message, where=" + ".join(CONFIG_FILES)):
+    """Bad config: one line naming the file(s) and the key, exit status 2 before any job (as the
+    command line does); a WorkflowError would exit 1 and add Snakemake's location lines."""
+    import sys
+
+    sys.stderr.write(f"{where + ': ' if where else ''}{' '.join(str(message).split())}\n")
+    raise SystemExit(2)
+
+
+# Snakemake's YAML reader keeps the last of a key written twice: read every config file again
+# with ours, which names the file, the key and both lines
+for _file in CONFIG_FILES:
+    try:
+        read_yaml_mapping(_Path(_file), _file, ConfigError)
+    except ConfigError as _err:
+        _stop(_err, where="")
+
 try:
     validate_config(config)
+    check_closeloop_settings(config)
     _missing = [k for k in ("identification", "assembly", "uncertainty", "mu", "validation", "closeloop")
                 if k not in config]
     if _missing:
         raise ConfigError("; ".join(f"config key '{k}': missing (required by the workflow)" for k in _missing))
+    for _name, _path in (config["closeloop"].get("datasets") or {}).items():
+        if not _Path(_path).is_file():
+            raise ConfigError(f"config key 'closeloop.datasets.{_name}': data file '{_path}' not found")
     RUN_CONFIGS = run_configs(config)
     for _run, _cfg in RUN_CONFIGS.items():
         try:
             validate_config(_cfg)
         except ConfigError as _err:
-            raise ConfigError(f"run '{_run or 'default'}': {_err}") from None
+            raise ConfigError(f"run '{_run.removeprefix('runs/').rstrip('/') or 'default'}': {_err}") from None
 except ConfigError as _err:
-    raise WorkflowError(f"config.yaml: {_err}") from None
+    _stop(_err)
 
 PLAN = Plan(RUN_CONFIGS)
 #: run prefixes of the named scenarios and of the study

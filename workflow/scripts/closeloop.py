@@ -10,4 +10,4 @@ with job_log(snakemake.log[0], "closeloop"):  # noqa: F821
     cfg = snakemake.params.cfg  # noqa: F821
     validate_config(cfg)
     run_closeloop(snakemake.input.data, Path(snakemake.output.json).parent, config=cfg, progress=True,  # noqa: F821
-                  workers=snakemake.threads)  # noqa: F821
+                  workers=snakemake.threads, force=True)  # noqa: F821  (the outputs are Snakemake's)

@@ -12,4 +12,4 @@ with job_log(snakemake.log[0], "closeloop_rig"):  # noqa: F821
     hold = dict(zip(p.hold, snakemake.input.hold))  # noqa: F821
     run_recordings(fit, hold, Path(snakemake.output.json).parent,  # noqa: F821
                    config=p.cfg, device=p.device, progress=True, workers=snakemake.threads,  # noqa: F821
-                   reports=reports)
+                   reports=reports, force=True)  # the outputs are Snakemake's

@@ -20,10 +20,74 @@ NEEDS_HINT = True
 ORDER = 99
 
 
+#: the columns of a force table (a CSV file's header, or the inline arrays)
+FORCE_COLUMNS = ("t", "fx_n", "fy_n")
+
+
 def validate(p: dict, where: str) -> dict:
-    if "file" not in p and not all(k in p for k in ("t", "fx_n", "fy_n")):
+    if "file" not in p and not all(k in p for k in FORCE_COLUMNS):
         raise EffectError(f"{where}: give 'file' (CSV with t, fx_n, fy_n) or arrays t, fx_n, fy_n")
+    if "file" in p and any(k in p for k in FORCE_COLUMNS):
+        raise EffectError(f"{where}: give either 'file' or the arrays t, fx_n, fy_n, not both")
+    if "file" not in p:
+        check_force_table({k: np.asarray(p[k], float) for k in FORCE_COLUMNS}, where, EffectError, what="parameter")
     return p
+
+
+def check_force_table(cols, where: str, error=EffectError, what: str = "column", header_lines: int | None = None) -> None:
+    """Check a force table like a measured-data file: exactly the columns :data:`FORCE_COLUMNS`,
+    of equal length, finite numbers, ``t`` strictly increasing (the force is interpolated
+    linearly in ``t`` and held at its end values outside the table; a ``t`` that turns back
+    would interpolate between the wrong rows). ``error(f"{where}: {what} 'K': ...")`` names the
+    column and, for a bad value, its position: the file's line when ``header_lines`` is given
+    (the data start below that many lines), else the entry (1 = the first)."""
+
+    def at(k: int) -> str:
+        return f"line {k + 1 + header_lines}" if header_lines is not None else f"entry {k + 1}"
+
+    missing = [c for c in FORCE_COLUMNS if c not in cols]
+    if missing:
+        raise error(f"{where}: missing {what}(s) {', '.join(missing)} (a force table has t, fx_n, fy_n)")
+    extra = [c for c in cols if c not in FORCE_COLUMNS]
+    if extra:
+        raise error(f"{where}: {what} '{extra[0]}' is unknown (a force table has t, fx_n, fy_n)")
+    n = len(cols["t"])
+    for c in FORCE_COLUMNS:
+        a = np.asarray(cols[c])
+        if a.ndim != 1 or len(a) != n or n == 0:
+            raise error(f"{where}: {what} '{c}' has {a.size} values, 't' has {n} (need the same number, at least one)")
+        bad = ~np.isfinite(a)
+        if bad.any():
+            raise error(f"{where}: {what} '{c}', {at(int(np.argmax(bad)))}: {float(a[bad][0])!r} is not a finite number")
+    step = np.diff(np.asarray(cols["t"], float))
+    if (step <= 0).any():
+        k = int(np.argmax(step <= 0))
+        raise error(f"{where}: {what} 't' must increase strictly: {at(k + 1)} ({float(cols['t'][k + 1])!r}) "
+                    f"does not follow {at(k)} ({float(cols['t'][k])!r})")
+
+
+def read_force_file(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r"""The force table of an ``external_force`` file: ``(t, fx_n, fy_n)`` in s and N.
+
+    The file is a CSV with a header row naming exactly ``t, fx_n, fy_n`` (any order), read and
+    checked like a measured-data file (:func:`ssamb.io.read_csv_columns`: a text or empty cell,
+    a short row, a binary file are errors naming the line) and then by
+    :func:`check_force_table` (no NaN or infinity, ``t`` strictly increasing).
+
+    Raises
+    ------
+    ssamb.io.DataError
+        One line naming the file and the column (and the line of a bad value).
+    """
+    from ...io import DataError, read_csv_columns
+
+    path = Path(path)
+    if not path.is_file():
+        what = "is a folder" if path.is_dir() else "not found"
+        raise DataError(f"{path}: {what} (an external force is a CSV file with the columns t, fx_n, fy_n)")
+    cols = read_csv_columns(path)
+    check_force_table(cols, str(path), DataError, header_lines=1)
+    return tuple(np.asarray(cols[c], float) for c in FORCE_COLUMNS)
 
 
 def apply(e: dict, ov: dict, f_x, f_y, t, base_dir) -> None:
@@ -31,13 +95,7 @@ def apply(e: dict, ov: dict, f_x, f_y, t, base_dir) -> None:
         path = Path(e["file"])
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
-        if not path.exists():
-            raise EffectError(f"effect 'external_force': file '{path}' not found")
-        tab = np.genfromtxt(path, delimiter=",", names=True)
-        missing = [c for c in ("t", "fx_n", "fy_n") if c not in (tab.dtype.names or ())]
-        if missing:
-            raise EffectError(f"effect 'external_force': file '{path}' lacks column(s) {', '.join(missing)}")
-        te, fxe, fye = tab["t"], tab["fx_n"], tab["fy_n"]
+        te, fxe, fye = read_force_file(path)
     else:
         te, fxe, fye = (np.asarray(e[k], float) for k in ("t", "fx_n", "fy_n"))
     f_x += np.interp(t, te, fxe)
