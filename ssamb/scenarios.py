@@ -29,7 +29,7 @@ from typing import Any, Callable, Mapping
 from .channels import SUBSYSTEMS
 from .config import ConfigError, apply_overrides, get
 
-__all__ = ["SIM_SECTIONS", "sim_config", "study_variants", "run_overrides", "run_configs", "Plan",
+__all__ = ["SIM_SECTIONS", "sim_config", "identification_config", "study_variants", "run_overrides", "run_configs", "Plan",
            "CHAIN", "run_prefix"]
 
 #: config sections the nonlinear simulator depends on (all physics, no analysis settings)
@@ -45,6 +45,13 @@ def sim_config(cfg: Mapping, experiment: str | None = None) -> dict:
     exps = cfg["experiments"]
     out["experiments"] = {experiment: exps[experiment]} if experiment is not None else dict(exps)
     return json.loads(json.dumps(out))  # a deep copy made of plain containers
+
+
+def identification_config(cfg: Mapping, subsystem: str) -> dict:
+    """The ``identification`` section as one subsystem's identification reads it: the shared
+    keys and that subsystem's own entry, without the other subsystems' (so that a changed
+    ``identification.<subsystem>.order`` reruns that subsystem's identification only)."""
+    return {k: v for k, v in cfg["identification"].items() if k not in SUBSYSTEMS or k == subsystem}
 
 
 def _label(value: Any) -> str:
@@ -181,7 +188,7 @@ def _mu_subsystems(case: str) -> tuple:
 #: stage -> (own config, upstream stage outputs) -- the arrows of the data flow
 CHAIN: dict[str, Callable] = {
     "simulate": lambda cfg, experiment: (sim_config(cfg, experiment), []),
-    "identify": lambda cfg, subsystem: (cfg["identification"], [
+    "identify": lambda cfg, subsystem: (identification_config(cfg, subsystem), [
         ("simulate", {"experiment": _exp(cfg, "identification.estimation")}),
         ("simulate", {"experiment": _exp(cfg, "identification.validation")})]),
     "select": lambda cfg: ([cfg["identification"], _pid(cfg)], [("identify", {"subsystem": s}) for s in SUBSYSTEMS]

@@ -24,7 +24,7 @@ rule identify:
         fig_validation="results/{run}ident/{subsystem}_validation.png",
         candidates="results/{run}ident/{subsystem}_candidates.npz",
     params:
-        identification=lambda wc: cfg_of(wc)["identification"],
+        identification=lambda wc: identification_config(cfg_of(wc), wc.subsystem),
     log:
         "results/{run}logs/identify/{subsystem}.log",
     benchmark:

@@ -13,7 +13,23 @@ from pathlib import Path as _Path
 from ssamb.channels import SUBSYSTEMS
 from ssamb.config import ConfigError, read_yaml_mapping, validate_config
 from ssamb.stages import check_closeloop_settings
-from ssamb.scenarios import Plan, run_configs, run_prefix, sim_config as _sim_config, study_variants
+from ssamb.scenarios import Plan, identification_config, run_configs, run_prefix, sim_config as _sim_config, study_variants
+
+def _patch_list_params_changes():
+    """``snakemake --list-changes params`` lists, in Snakemake 9 (9.27.1 included), the last
+    output file of every job whose params did *not* change: an unchanged ``ParamsChange`` ORed
+    with another keeps the other's file (persistence.ParamsChange.__or__), and listing iterates
+    the files without asking whether anything changed. List a job's files only when its params
+    changed (what the option promises; a dry run's "Params have changed" agrees)."""
+    from snakemake.persistence import ParamsChange
+
+    if not getattr(ParamsChange, "_lists_changed_only", False):
+        ParamsChange.__iter__ = lambda self: iter(self.files if self else ())
+        ParamsChange._lists_changed_only = True
+
+
+_patch_list_params_changes()
+
 
 def canonical(obj):
     """``obj`` with the keys of every mapping in sorted order (lists keep theirs).
