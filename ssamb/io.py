@@ -305,6 +305,8 @@ def load_npz(path: str | Path) -> tuple[dict, dict]:
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: file not found")
+    if path.is_file() and path.stat().st_size == 0:
+        raise DataError(f"{path}: empty file (not a readable NPZ file)")
     try:
         z = np.load(path, allow_pickle=False)
         if not isinstance(z, np.lib.npyio.NpzFile):
