@@ -254,7 +254,9 @@ class _Skip(Exception):
 
 
 def unreadable(path: Path) -> Path:
-    path.write_text("table1: {}\n")
+    """``path`` (a small config unless it exists) without read permission."""
+    if not path.exists():
+        path.write_text("table1: {}\n")
     os.chmod(path, 0)
     if os.geteuid() == 0:
         raise _Skip("an unreadable file needs a non-root user")
@@ -599,6 +601,8 @@ def _npz_cases() -> list[Case]:
     rows.append(Case("npz unknown extension", "npz", lambda d: closeloop(d, existing(d / "d.mat", "x")),
                      ("d.mat", "unknown data format")))
     c("file missing", ("not found",), lambda d: closeloop(d, d / "d.npz"))
+    c("read fails (I/O error)", ("readable",), lambda d: closeloop(d, io_error_file(d / "d.npz")))
+    c("unreadable (permission)", ("readable",), lambda d: closeloop(d, unreadable(npz(d))))
     return rows
 
 
@@ -636,6 +640,12 @@ def _csv_cases() -> list[Case]:
     c("a folder", csv_ + ("cannot be read",), lambda d: ((d / "d.csv").mkdir(),
                                                        (d / "d.json").write_text(json.dumps({"fs_hz": 83300.0})),
                                                        closeloop(d, d / "d.csv"))[2])
+    c("read fails (I/O error)", csv_ + ("cannot be read",),
+      lambda d: (existing(d / "d.json", json.dumps({"fs_hz": 83300.0, "meta": meta})),
+                 closeloop(d, io_error_file(d / "d.csv")))[1])
+    c("unreadable (permission)", csv_ + ("cannot be read",),
+      lambda d: (existing(d / "d.json", json.dumps({"fs_hz": 83300.0, "meta": meta})),
+                 closeloop(d, unreadable(existing(d / "d.csv", _csv_text()))))[1])
     c("column missing", csv_ + ("y_ss", "missing"),
       lambda d: csv(d, text="\n".join(",".join(p for i, p in enumerate(ln.split(",")) if i != 5)
                                       for ln in _csv_text().splitlines()) + "\n"))

@@ -225,9 +225,14 @@ class AMB(Device):
     def notes(self, arrays: Mapping, meta: Mapping, cfg: Mapping) -> list[str]:
         """Valid but suspicious data (x and y swapped, a channel that never moves or is clipped,
         ...): :func:`ssamb.plausibility.measured_notes`."""
+        import logging
+
         from ..plausibility import measured_notes
 
-        return measured_notes(arrays, meta, cfg)
+        notes = measured_notes(arrays, meta, cfg)
+        for note in notes:             # on stderr (a job's log) at once: before anything is fitted
+            logging.getLogger("ssamb.plausibility").warning("note: %s", note)
+        return notes
 
     def record(self, arrays: Mapping, meta: Mapping, cfg: Mapping, source: str) -> Record:
         """The record, after the values no rig produces (positions in mm, currents in mA, nothing
