@@ -1,4 +1,4 @@
-"""Re-run the whole bad-input table (tests/badinputs.py, issue 24) and print what happened.
+"""Re-run the whole bad-input table (tests/badinputs.py) and print what happened.
 
     python bench/bad_inputs.py                  # every row (the workflow rows run snakemake)
     python bench/bad_inputs.py --no-workflow    # without the workflow rows (about 20 s of CPU)

@@ -21,8 +21,8 @@ import copy
 import functools
 import hashlib
 import json
-from importlib import resources
 import math
+from importlib import resources
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 

@@ -29,8 +29,8 @@ from typing import Any, Callable, Mapping
 from .channels import SUBSYSTEMS
 from .config import ConfigError, apply_overrides, get
 
-__all__ = ["SIM_SECTIONS", "sim_config", "identification_config", "study_variants", "run_overrides", "run_configs", "Plan",
-           "CHAIN", "run_prefix"]
+__all__ = ["SIM_SECTIONS", "sim_config", "identification_config", "study_variants", "run_overrides", "run_configs",
+           "Plan", "CHAIN", "run_prefix"]
 
 #: config sections the nonlinear simulator depends on (all physics, no analysis settings)
 SIM_SECTIONS = ("seed", "table1", "geometry", "gravity_m_per_s2", "weight_share", "magnetics", "amplifier",

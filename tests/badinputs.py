@@ -1,4 +1,4 @@
-"""The bad-input table (issue 24): what a careless user feeds ssamb, and what must happen.
+"""The bad-input table: what a careless user feeds ssamb, and what must happen.
 
 Every row is a bad input to one entry point: a config file (``--config``), a ``--set`` override,
 a rig scenario, an NPZ or CSV data file, the command line and its output locations, data that
@@ -20,6 +20,7 @@ line misses a listed word), ``wrote files``, or ``skipped`` (a row that needs wh
 lacks, e.g. a non-root user). ``tests/test_bad_inputs.py`` asserts ``ok`` for every row;
 ``bench/bad_inputs.py`` re-runs the whole table and prints the counts.
 """
+
 from __future__ import annotations
 
 import copy
@@ -57,7 +58,7 @@ class Case:
     names: tuple = ()
     kind: str = "cli"
     status: int = 2
-    log: str | None = None          # workflow: the job log that must hold the message
+    log: str | None = None  # workflow: the job log that must hold the message
 
 
 @dataclass(frozen=True)
@@ -194,8 +195,16 @@ CURRENTS = ("i_ypos", "i_yneg", "i_xpos", "i_xneg")
 CSV_COLUMNS = ("t", "r_x", "r_y", "x_meas", "y_meas", "y_ss", "i_ypos", "i_yneg", "i_xpos", "i_xneg", "u_x", "u_y")
 
 
-def csv(d: Path, cell: tuple | None = None, sidecar=None, columns=CSV_COLUMNS, rows: int = 30000,
-        text: str | None = None, arrays: dict | None = None, sep: str = ",") -> list:
+def csv(
+    d: Path,
+    cell: tuple | None = None,
+    sidecar=None,
+    columns=CSV_COLUMNS,
+    rows: int = 30000,
+    text: str | None = None,
+    arrays: dict | None = None,
+    sep: str = ",",
+) -> list:
     """``closeloop`` on a CSV of the demo data's first ``rows`` samples with its sidecar; ``cell``
     = (row, column, text) replaces one cell."""
     path = d / "d.csv"
@@ -306,23 +315,44 @@ def _cfg_cases() -> list[Case]:
         c(id, ("c.yaml",) + tuple(names), lambda d: simulate(d, config=config_file(d, text=fn(CONFIG_TEXT))))
 
     c("config is a folder", ("cfg", "folder"), lambda d: simulate(d, config=(d / "cfg").mkdir() or d / "cfg"))
-    c("config is binary", ("bin.yaml", "UTF-8"),
-      lambda d: simulate(d, config=binary(d / "bin.yaml")))
-    c("config unreadable (permission)", ("u.yaml", "cannot be read"), lambda d: simulate(d, config=unreadable(d / "u.yaml")))
-    c("config read fails (I/O error)", ("io.yaml", "cannot be read"), lambda d: simulate(d, config=io_error_file(d / "io.yaml")))
+    c("config is binary", ("bin.yaml", "UTF-8"), lambda d: simulate(d, config=binary(d / "bin.yaml")))
+    c(
+        "config unreadable (permission)",
+        ("u.yaml", "cannot be read"),
+        lambda d: simulate(d, config=unreadable(d / "u.yaml")),
+    )
+    c(
+        "config read fails (I/O error)",
+        ("io.yaml", "cannot be read"),
+        lambda d: simulate(d, config=io_error_file(d / "io.yaml")),
+    )
     c("config not found", ("none.yaml", "not found"), lambda d: simulate(d, config=d / "none.yaml"))
     text("config empty", ("mapping",), lambda t: "")
     text("config a list", ("mapping",), lambda t: "- 1\n- 2\n")
     text("config invalid YAML", ("YAML",), lambda t: "table1: [1, 2\n")
     text("config tab indentation", ("YAML",), lambda t: replace_once(t, "  mass_kg:", "\tmass_kg:"))
-    text("duplicate key in a section", ("table1.mass_kg", "twice"),
-         lambda t: replace_once(t, "  mass_kg: 3.86", "  mass_kg: 3.86\n  mass_kg: 3.96"))
+    text(
+        "duplicate key in a section",
+        ("table1.mass_kg", "twice"),
+        lambda t: replace_once(t, "  mass_kg: 3.86", "  mass_kg: 3.86\n  mass_kg: 3.96"),
+    )
     text("duplicate section", ("seed", "twice"), lambda t: t + "\nseed: 7\n")
-    text("duplicate key in a flow mapping", ("experiments.levitate.excitation.kind", "twice"),
-         lambda t: replace_once(t, "excitation: {kind: none}", "excitation: {kind: none, kind: step}"))
-    text("number written 1e30", ("table1.mass_kg", "1e30", "text"), lambda t: replace_once(t, "mass_kg: 3.86", "mass_kg: 1e30"))
+    text(
+        "duplicate key in a flow mapping",
+        ("experiments.levitate.excitation.kind", "twice"),
+        lambda t: replace_once(t, "excitation: {kind: none}", "excitation: {kind: none, kind: step}"),
+    )
+    text(
+        "number written 1e30",
+        ("table1.mass_kg", "1e30", "text"),
+        lambda t: replace_once(t, "mass_kg: 3.86", "mass_kg: 1e30"),
+    )
     text("NaN in the file", ("table1.mass_kg", "finite"), lambda t: replace_once(t, "mass_kg: 3.86", "mass_kg: .nan"))
-    text("infinity in the file", ("controller.fs_hz", "finite"), lambda t: replace_once(t, "fs_hz: 83300.0", "fs_hz: .inf"))
+    text(
+        "infinity in the file",
+        ("controller.fs_hz", "finite"),
+        lambda t: replace_once(t, "fs_hz: 83300.0", "fs_hz: .inf"),
+    )
     edit("unknown section", ("colour", "unknown"), colour="red")
     edit("misspelt key", ("table1", "mass_kgs"), table1__mass_kgs=3.86)
     edit("missing section", ("controller", "missing"), controller=_DELETE)
@@ -333,17 +363,26 @@ def _cfg_cases() -> list[Case]:
     edit("boolean for a number", ("table1.mass_kg",), table1__mass_kg=True)
     edit("negative mass", ("table1.mass_kg",), table1__mass_kg=-3.86)
     units = [
-        ("airgap in mm", "table1.airgap_m", 0.6), ("airgap in um as mm", "table1.airgap_m", 6e-7),
-        ("clearance in um", "table1.backup_clearance_m", 250.0), ("mass 1e30", "table1.mass_kg", 1e30),
-        ("bias in mA", "table1.i_bias_a", 3000.0), ("supply in mV", "table1.v_supply_v", 50000.0),
-        ("switching frequency in kHz", "table1.f_pwm_hz", 30.0), ("turns 5e6", "table1.coil_turns", 5e6),
-        ("axial length in mm", "table1.axial_length_m", 49.15), ("pole width in mm", "table1.pole_width_m", 13.89),
-        ("stator radius in mm", "table1.r_stator_outer_m", 75.0), ("controller rate in kHz", "controller.fs_hz", 83.3),
-        ("output clamp in mA", "controller.u_max_a", 3000.0), ("current clamp in mA", "amplifier.i_ref_max_a", 10000.0),
-        ("gravity in mm/s^2", "gravity_m_per_s2", 9810.0), ("knee in mT", "magnetics.b_knee_t", 1300.0),
+        ("airgap in mm", "table1.airgap_m", 0.6),
+        ("airgap in um as mm", "table1.airgap_m", 6e-7),
+        ("clearance in um", "table1.backup_clearance_m", 250.0),
+        ("mass 1e30", "table1.mass_kg", 1e30),
+        ("bias in mA", "table1.i_bias_a", 3000.0),
+        ("supply in mV", "table1.v_supply_v", 50000.0),
+        ("switching frequency in kHz", "table1.f_pwm_hz", 30.0),
+        ("turns 5e6", "table1.coil_turns", 5e6),
+        ("axial length in mm", "table1.axial_length_m", 49.15),
+        ("pole width in mm", "table1.pole_width_m", 13.89),
+        ("stator radius in mm", "table1.r_stator_outer_m", 75.0),
+        ("controller rate in kHz", "controller.fs_hz", 83.3),
+        ("output clamp in mA", "controller.u_max_a", 3000.0),
+        ("current clamp in mA", "amplifier.i_ref_max_a", 10000.0),
+        ("gravity in mm/s^2", "gravity_m_per_s2", 9810.0),
+        ("knee in mT", "magnetics.b_knee_t", 1300.0),
         ("lamination in mm", "magnetics.lamination_thickness_m", 0.35),
         ("conductivity beyond copper's", "magnetics.iron_conductivity_s_per_m", 2e12),
-        ("probe bandwidth in MHz", "sensors.x_bandwidth_hz", 0.02), ("pre-roll in ms", "simulation.settle_s", 50.0),
+        ("probe bandwidth in MHz", "sensors.x_bandwidth_hz", 0.02),
+        ("pre-roll in ms", "simulation.settle_s", 50.0),
         ("ADC range in um", "converters.position_adc_range_m", 500.0),
     ]
     for id, key, value in units:
@@ -351,41 +390,72 @@ def _cfg_cases() -> list[Case]:
     edit("mass in g (beyond the load capacity)", ("table1.mass_kg", "weight"), table1__mass_kg=3860.0)
     edit("coil resistance in mohm", ("table1.r_coil_ohm", "table1.v_supply_v"), table1__r_coil_ohm=200.0)
     edit("PID gain in A/mm", ("table1.pid_kp_a_per_m",), table1__pid_kp_a_per_m=20.0)
-    edit("calibration positions in um", ("selfsensing.calibration_positions_m",),
-         selfsensing__calibration_positions_m=[-100.0, 0.0, 100.0])
-    edit("excitation amplitude in um", ("experiments.sweep.excitation.amplitude_m", "airgap"),
-         experiments__sweep__excitation__amplitude_m=99.0)
-    edit("injection amplitude in mA", ("experiments.id_pulses.excitation.amplitude_a",),
-         experiments__id_pulses__excitation__amplitude_a=300.0)
+    edit(
+        "calibration positions in um",
+        ("selfsensing.calibration_positions_m",),
+        selfsensing__calibration_positions_m=[-100.0, 0.0, 100.0],
+    )
+    edit(
+        "excitation amplitude in um",
+        ("experiments.sweep.excitation.amplitude_m", "airgap"),
+        experiments__sweep__excitation__amplitude_m=99.0,
+    )
+    edit(
+        "injection amplitude in mA",
+        ("experiments.id_pulses.excitation.amplitude_a",),
+        experiments__id_pulses__excitation__amplitude_a=300.0,
+    )
     edit("duration 1e9 s", ("experiments.levitate.duration_s", "samples"), experiments__levitate__duration_s=1e9)
-    edit("multisine periods 1e8", ("experiments.multisine", "periods", "samples"),
-         experiments__multisine__excitation__periods=100000000)
-    edit("multisine resolution 1e-7 Hz", ("experiments.multisine", "f_resolution_hz", "samples"),
-         experiments__multisine__excitation__f_resolution_hz=1e-7)
+    edit(
+        "multisine periods 1e8",
+        ("experiments.multisine", "periods", "samples"),
+        experiments__multisine__excitation__periods=100000000,
+    )
+    edit(
+        "multisine resolution 1e-7 Hz",
+        ("experiments.multisine", "f_resolution_hz", "samples"),
+        experiments__multisine__excitation__f_resolution_hz=1e-7,
+    )
     edit("sweep record 1e9 s", ("experiments.sweep.duration_s", "samples"), experiments__sweep__duration_s=1e9)
     edit("clearance not below the airgap", ("table1.backup_clearance_m", "airgap"), table1__backup_clearance_m=7e-4)
     edit("rate a multiple of the PWM", ("controller.fs_hz", "multiple"), controller__fs_hz=90000.0)
-    edit("derivative filter above Nyquist", ("controller.derivative_filter_hz", "Nyquist"),
-         controller__derivative_filter_hz=50000.0)
+    edit(
+        "derivative filter above Nyquist",
+        ("controller.derivative_filter_hz", "Nyquist"),
+        controller__derivative_filter_hz=50000.0,
+    )
     edit("low-pass above Nyquist", ("selfsensing.lowpass_hz", "Nyquist"), selfsensing__lowpass_hz=50000.0)
     edit("duty limits crossed", ("amplifier.duty_min",), amplifier__duty_min=0.9, amplifier__duty_max=0.1)
     edit("radii out of order", ("table1.r_pole_m", "larger"), table1__r_pole_m=0.02)
     edit("weight share 2", ("weight_share",), weight_share=2.0)
     edit("six poles", ("geometry.n_poles",), geometry__n_poles=6)
     edit("unknown eddy model", ("magnetics.eddy_model",), magnetics__eddy_model="foo")
-    edit("unknown excitation kind", ("experiments.levitate.excitation", "noise"),
-         experiments__levitate__excitation={"kind": "noise"})
-    edit("unknown excitation key", ("experiments.sweep.excitation", "amplitude_mm"),
-         experiments__sweep__excitation__amplitude_mm=1.0)
+    edit(
+        "unknown excitation kind",
+        ("experiments.levitate.excitation", "noise"),
+        experiments__levitate__excitation={"kind": "noise"},
+    )
+    edit(
+        "unknown excitation key",
+        ("experiments.sweep.excitation", "amplitude_mm"),
+        experiments__sweep__excitation__amplitude_mm=1.0,
+    )
     edit("unknown start", ("experiments.levitate.start",), experiments__levitate__start="hover")
     edit("no experiments", ("experiments",), experiments={})
     edit("model order above the horizon", ("identification.plant.order", "ss_f"), identification__plant__order=40)
-    edit("uncertainty on a pulse experiment", ("uncertainty.experiment", "multisine"), uncertainty__experiment="id_pulses")
+    edit(
+        "uncertainty on a pulse experiment",
+        ("uncertainty.experiment", "multisine"),
+        uncertainty__experiment="id_pulses",
+    )
     edit("mu band reversed", ("mu.f_min_hz",), mu__f_min_hz=5000.0)
     edit("mu grid 1e9 points", ("mu.n_points",), mu__n_points=1000000000)
     edit("unknown experiment referenced", ("identification.estimation", "nope"), identification__estimation="nope")
-    edit("study key not in the config", ("study.assumptions", "key"),
-         study__assumptions={"x": {"key": "table1.no_such", "values": [1.0]}})
+    edit(
+        "study key not in the config",
+        ("study.assumptions", "key"),
+        study__assumptions={"x": {"key": "table1.no_such", "values": [1.0]}},
+    )
     return rows
 
 
@@ -421,14 +491,27 @@ def _set_cases() -> list[Case]:
         ("no experiments", "experiments={}", ("experiments",)),
         ("rate a multiple of the PWM", "controller.fs_hz=90000.0", ("controller.fs_hz", "multiple")),
         ("clearance not below the airgap", "table1.backup_clearance_m=0.001", ("table1.backup_clearance_m",)),
-        ("calibration beyond the clearance", "selfsensing.calibration_positions_m=[0.001, 0.0]",
-         ("selfsensing.calibration_positions_m",)),
+        (
+            "calibration beyond the clearance",
+            "selfsensing.calibration_positions_m=[0.001, 0.0]",
+            ("selfsensing.calibration_positions_m",),
+        ),
         ("six poles", "geometry.n_poles=6", ("geometry.n_poles",)),
         ("64-bit ADC", "converters.current_adc_bits=64", ("converters.current_adc_bits",)),
-        ("amplitude in um", "experiments.sweep.excitation.amplitude_m=99", ("experiments.sweep.excitation.amplitude_m",)),
+        (
+            "amplitude in um",
+            "experiments.sweep.excitation.amplitude_m=99",
+            ("experiments.sweep.excitation.amplitude_m",),
+        ),
     ]:
-        rows.append(Case(f"--set {id}", "set", functools.partial(lambda d, s: simulate(d, "--set", s), s=setting),
-                         ("config.yaml",) + names))
+        rows.append(
+            Case(
+                f"--set {id}",
+                "set",
+                functools.partial(lambda d, s: simulate(d, "--set", s), s=setting),
+                ("config.yaml",) + names,
+            )
+        )
     return rows
 
 
@@ -446,16 +529,22 @@ def _scenario_cases() -> list[Case]:
     c("empty", s + ("mapping",), lambda d: scenario(d, text=""))
     c("invalid YAML", s + ("YAML",), lambda d: scenario(d, text="experiment: [1, 2\n"))
     c("a list", s + ("mapping",), lambda d: scenario(d, text="- 1\n"))
-    c("duplicate key", s + ("duration_s", "twice"),
-      lambda d: scenario(d, text=yaml.safe_dump(BASE_SCENARIO) + "duration_s: 0.5\n"))
+    c(
+        "duplicate key",
+        s + ("duration_s", "twice"),
+        lambda d: scenario(d, text=yaml.safe_dump(BASE_SCENARIO) + "duration_s: 0.5\n"),
+    )
     c("no experiment", s + ("experiment", "missing"), lambda d: scenario(d, experiment=None))
     c("unknown key", s + ("colour",), lambda d: scenario(d, colour="red"))
     c("experiment a number", s + ("experiment",), lambda d: scenario(d, experiment=3))
     c("unknown experiment name", s + ("nope",), lambda d: scenario(d, experiment="nope"))
     c("experiment without kind", s + ("experiment.kind",), lambda d: scenario(d, experiment={"axis": "y"}))
     c("unknown excitation kind", s + ("experiment", "noise"), lambda d: scenario(d, experiment={"kind": "noise"}))
-    c("unknown excitation key", s + ("experiment", "amplitude_mm"),
-      lambda d: scenario(d, experiment={"kind": "step", "amplitude_mm": 1, "t_step_s": 0.01}))
+    c(
+        "unknown excitation key",
+        s + ("experiment", "amplitude_mm"),
+        lambda d: scenario(d, experiment={"kind": "step", "amplitude_mm": 1, "t_step_s": 0.01}),
+    )
     c("negative seed", s + ("experiment.seed",), lambda d: scenario(d, experiment={"kind": "none", "seed": -3}))
     c("no duration", s + ("duration_s", "missing"), lambda d: scenario(d, duration_s=None))
     c("duration NaN", s + ("duration_s", "finite"), lambda d: scenario(d, duration_s=float("nan")))
@@ -465,18 +554,44 @@ def _scenario_cases() -> list[Case]:
     c("unknown start", s + ("start",), lambda d: scenario(d, start="hover"))
     c("config not found", s + ("config", "nothing.yaml"), lambda d: scenario(d, config=str(d / "nothing.yaml")))
     c("config a folder", s + ("config", "folder"), lambda d: scenario(d, config=str((d / "cf").mkdir() or d / "cf")))
-    c("config with NaN", s + ("config", "table1.mass_kg", "finite"),
-      lambda d: scenario(d, config=str(config_file(d, text=replace_once(CONFIG_TEXT, "mass_kg: 3.86", "mass_kg: .nan")))))
-    c("config with duplicate key", s + ("config", "table1.mass_kg", "twice"),
-      lambda d: scenario(d, config=str(config_file(
-          d, text=replace_once(CONFIG_TEXT, "  mass_kg: 3.86", "  mass_kg: 3.86\n  mass_kg: 3.9")))))
+    c(
+        "config with NaN",
+        s + ("config", "table1.mass_kg", "finite"),
+        lambda d: scenario(
+            d, config=str(config_file(d, text=replace_once(CONFIG_TEXT, "mass_kg: 3.86", "mass_kg: .nan")))
+        ),
+    )
+    c(
+        "config with duplicate key",
+        s + ("config", "table1.mass_kg", "twice"),
+        lambda d: scenario(
+            d,
+            config=str(
+                config_file(d, text=replace_once(CONFIG_TEXT, "  mass_kg: 3.86", "  mass_kg: 3.86\n  mass_kg: 3.9"))
+            ),
+        ),
+    )
     c("overrides a list", s + ("overrides",), lambda d: scenario(d, overrides=[1]))
-    c("override of no key", s + ("overrides.table1.mass_kgs",), lambda d: scenario(d, overrides={"table1.mass_kgs": 4.0}))
-    c("override airgap in mm", s + ("overrides.table1.airgap_m", "plausible"),
-      lambda d: scenario(d, overrides={"table1.airgap_m": 0.6}))
-    c("override mass in g", s + ("overrides.table1.mass_kg", "weight"),
-      lambda d: scenario(d, overrides={"table1.mass_kg": 3860.0}))
-    c("override NaN", s + ("table1.mass_kg", "finite"), lambda d: scenario(d, overrides={"table1.mass_kg": float("nan")}))
+    c(
+        "override of no key",
+        s + ("overrides.table1.mass_kgs",),
+        lambda d: scenario(d, overrides={"table1.mass_kgs": 4.0}),
+    )
+    c(
+        "override airgap in mm",
+        s + ("overrides.table1.airgap_m", "plausible"),
+        lambda d: scenario(d, overrides={"table1.airgap_m": 0.6}),
+    )
+    c(
+        "override mass in g",
+        s + ("overrides.table1.mass_kg", "weight"),
+        lambda d: scenario(d, overrides={"table1.mass_kg": 3860.0}),
+    )
+    c(
+        "override NaN",
+        s + ("table1.mass_kg", "finite"),
+        lambda d: scenario(d, overrides={"table1.mass_kg": float("nan")}),
+    )
     c("override text", s + ("overrides.table1.mass_kg",), lambda d: scenario(d, overrides={"table1.mass_kg": "heavy"}))
     c("noise not a mapping", s + ("noise",), lambda d: scenario(d, noise=3))
     c("noise unknown key", s + ("noise.colour",), lambda d: scenario(d, noise={"colour": 1, "seed": 1}))
@@ -492,51 +607,113 @@ def _scenario_cases() -> list[Case]:
     c("effect without name", s + ("effects[0]", "name"), lambda d: effect(d, fx_n=1.0, fy_n=0.0))
     c("unknown effect", s + ("effects[0]", "gremlins"), lambda d: effect(d, name="gremlins"))
     c("effect missing parameter", s + ("effects[0]", "fy_n"), lambda d: effect(d, name="static_load", fx_n=1.0))
-    c("effect unknown parameter", s + ("effects[0]", "fz_n"),
-      lambda d: effect(d, name="static_load", fx_n=1.0, fy_n=0.0, fz_n=1.0))
-    c("effect parameter NaN", s + ("effects[0]", "finite"), lambda d: effect(d, name="static_load", fx_n=float("nan"), fy_n=0.0))
-    c("effect parameter text", s + ("effects[0]", "fx_n"), lambda d: effect(d, name="static_load", fx_n="1 N", fy_n=0.0))
+    c(
+        "effect unknown parameter",
+        s + ("effects[0]", "fz_n"),
+        lambda d: effect(d, name="static_load", fx_n=1.0, fy_n=0.0, fz_n=1.0),
+    )
+    c(
+        "effect parameter NaN",
+        s + ("effects[0]", "finite"),
+        lambda d: effect(d, name="static_load", fx_n=float("nan"), fy_n=0.0),
+    )
+    c(
+        "effect parameter text",
+        s + ("effects[0]", "fx_n"),
+        lambda d: effect(d, name="static_load", fx_n="1 N", fy_n=0.0),
+    )
     c("effect axis z", s + ("effects[0]", "axis"), lambda d: effect(d, name="sensor_delay", axis="z", delay_s=1e-5))
-    c("sensor delay 1 s", s + ("effects[0]", "delay_s"), lambda d: effect(d, name="sensor_delay", axis="x", delay_s=1.0))
+    c(
+        "sensor delay 1 s",
+        s + ("effects[0]", "delay_s"),
+        lambda d: effect(d, name="sensor_delay", axis="x", delay_s=1.0),
+    )
     c("sensor gain 0", s + ("effects[0]", "gain"), lambda d: effect(d, name="sensor_gain", axis="x", gain=0.0))
-    c("dead time 1 ms", s + ("effects[0]", "deadtime_s"), lambda d: effect(d, name="amplifier_deadtime", deadtime_s=1e-3))
-    c("unbalance negative speed", s + ("effects[0]", "speed_hz"),
-      lambda d: effect(d, name="unbalance", speed_hz=-37.3, mass_ecc_kgm=1e-5))
-    c("unbalance speed in rpm", s + ("effects[0]", "unbalance", "rpm"),
-      lambda d: effect(d, name="unbalance", speed_hz=2238.0, mass_ecc_kgm=3.64e-5, phase_rad=0.8))
-    c("static load 1e6 N", s + ("effects[0]", "static_load", "capacity"),
-      lambda d: effect(d, name="static_load", fx_n=0.0, fy_n=1e6))
-    c("static load at the capacity", s + ("no levitated equilibrium", "table1.mass_kg"),
-      lambda d: effect(d, name="static_load", fx_n=0.0, fy_n=-160.0))
-    c("force arrays of unequal length", s + ("effects[0]", "fy_n"),
-      lambda d: effect(d, name="external_force", t=[0.0, 0.01], fx_n=[0.0, 1.0], fy_n=[0.0]))
-    c("force arrays t decreasing", s + ("effects[0]", "'t'", "increase"),
-      lambda d: effect(d, name="external_force", t=[0.0, 0.01, 0.005], fx_n=[0.0, 1.0, 0.0], fy_n=[0.0] * 3))
-    c("force file and arrays", s + ("effects[0]", "either"),
-      lambda d: existing(d / "force.csv", "t,fx_n,fy_n\n0,0,0\n") and
-      effect(d, name="external_force", file="force.csv", t=[0.0], fx_n=[1.0], fy_n=[0.0]))
+    c(
+        "dead time 1 ms",
+        s + ("effects[0]", "deadtime_s"),
+        lambda d: effect(d, name="amplifier_deadtime", deadtime_s=1e-3),
+    )
+    c(
+        "unbalance negative speed",
+        s + ("effects[0]", "speed_hz"),
+        lambda d: effect(d, name="unbalance", speed_hz=-37.3, mass_ecc_kgm=1e-5),
+    )
+    c(
+        "unbalance speed in rpm",
+        s + ("effects[0]", "unbalance", "rpm"),
+        lambda d: effect(d, name="unbalance", speed_hz=2238.0, mass_ecc_kgm=3.64e-5, phase_rad=0.8),
+    )
+    c(
+        "static load 1e6 N",
+        s + ("effects[0]", "static_load", "capacity"),
+        lambda d: effect(d, name="static_load", fx_n=0.0, fy_n=1e6),
+    )
+    c(
+        "static load at the capacity",
+        s + ("no levitated equilibrium", "table1.mass_kg"),
+        lambda d: effect(d, name="static_load", fx_n=0.0, fy_n=-160.0),
+    )
+    c(
+        "force arrays of unequal length",
+        s + ("effects[0]", "fy_n"),
+        lambda d: effect(d, name="external_force", t=[0.0, 0.01], fx_n=[0.0, 1.0], fy_n=[0.0]),
+    )
+    c(
+        "force arrays t decreasing",
+        s + ("effects[0]", "'t'", "increase"),
+        lambda d: effect(d, name="external_force", t=[0.0, 0.01, 0.005], fx_n=[0.0, 1.0, 0.0], fy_n=[0.0] * 3),
+    )
+    c(
+        "force file and arrays",
+        s + ("effects[0]", "either"),
+        lambda d: (
+            existing(d / "force.csv", "t,fx_n,fy_n\n0,0,0\n")
+            and effect(d, name="external_force", file="force.csv", t=[0.0], fx_n=[1.0], fy_n=[0.0])
+        ),
+    )
     f = s + ("effects[0].file", "force.csv")
     head = "t,fx_n,fy_n\n"
     c("force NaN cell", f + ("'fx_n'", "line 3"), lambda d: force_csv(d, head + "0,0,0\n0.005,nan,1\n0.01,0,0\n"))
-    c("force text cell", f + ("'fx_n'", "line 3", "'abc'"), lambda d: force_csv(d, head + "0,0,0\n0.005,abc,1\n0.01,0,0\n"))
+    c(
+        "force text cell",
+        f + ("'fx_n'", "line 3", "'abc'"),
+        lambda d: force_csv(d, head + "0,0,0\n0.005,abc,1\n0.01,0,0\n"),
+    )
     c("force empty cell", f + ("'fy_n'", "line 2"), lambda d: force_csv(d, head + "0,0,\n0.01,0,0\n"))
     c("force infinity", f + ("'fy_n'", "finite"), lambda d: force_csv(d, head + "0,0,inf\n"))
     c("force column missing", f + ("fy_n", "missing"), lambda d: force_csv(d, "t,fx_n\n0,0\n0.01,1\n"))
     c("force unknown column", f + ("fz_n", "unknown"), lambda d: force_csv(d, "t,fx_n,fy_n,fz_n\n0,0,0,0\n"))
-    c("force t decreasing", f + ("'t'", "increase", "line 4"), lambda d: force_csv(d, head + "0,0,0\n0.005,0,1\n0.002,0,0\n"))
+    c(
+        "force t decreasing",
+        f + ("'t'", "increase", "line 4"),
+        lambda d: force_csv(d, head + "0,0,0\n0.005,0,1\n0.002,0,0\n"),
+    )
     c("force t repeated", f + ("'t'", "increase"), lambda d: force_csv(d, head + "0,0,0\n0.005,0,1\n0.005,0,0\n"))
     c("force file empty", f + ("empty",), lambda d: force_csv(d, ""))
     c("force header only", f + ("no data rows",), lambda d: force_csv(d, head))
     c("force short row", f + ("cells",), lambda d: force_csv(d, head + "0,0\n"))
     c("force semicolons", f + ("not a number",), lambda d: force_csv(d, "t;fx_n;fy_n\n0;0;0\n"))
-    c("force binary", f + ("UTF-8",),
-      lambda d: binary(d / "force.csv") and scenario(d, effects=[{"name": "external_force", "file": "force.csv"}]))
-    c("force file missing", s + ("effects[0].file", "not found"),
-      lambda d: scenario(d, effects=[{"name": "external_force", "file": "gone.csv"}]))
-    c("force file a folder", s + ("effects[0].file", "folder"),
-      lambda d: (d / "fdir.csv").mkdir() or scenario(d, effects=[{"name": "external_force", "file": "fdir.csv"}]))
-    c("force beyond the capacity", s + ("effects[0]", "external_force", "capacity"),
-      lambda d: force_csv(d, head + "0,0,1e6\n0.01,0,1e6\n"))
+    c(
+        "force binary",
+        f + ("UTF-8",),
+        lambda d: binary(d / "force.csv") and scenario(d, effects=[{"name": "external_force", "file": "force.csv"}]),
+    )
+    c(
+        "force file missing",
+        s + ("effects[0].file", "not found"),
+        lambda d: scenario(d, effects=[{"name": "external_force", "file": "gone.csv"}]),
+    )
+    c(
+        "force file a folder",
+        s + ("effects[0].file", "folder"),
+        lambda d: (d / "fdir.csv").mkdir() or scenario(d, effects=[{"name": "external_force", "file": "fdir.csv"}]),
+    )
+    c(
+        "force beyond the capacity",
+        s + ("effects[0]", "external_force", "capacity"),
+        lambda d: force_csv(d, head + "0,0,1e6\n0.01,0,1e6\n"),
+    )
     return rows
 
 
@@ -557,7 +734,7 @@ def _npz_cases() -> list[Case]:
         p = npz(d)
         b = bytearray(p.read_bytes())
         i = b.index(b"\x93NUMPY", b.index(b"x_meas.npy")) + 300
-        b[i:i + 16] = b"\xff" * 16
+        b[i : i + 16] = b"\xff" * 16
         p.write_bytes(bytes(b))
         return closeloop(d, p)
 
@@ -571,15 +748,38 @@ def _npz_cases() -> list[Case]:
     c("a folder", ("readable",), lambda d: (d / "d.npz").mkdir() or closeloop(d, d / "d.npz"))
     c("meta not JSON", ("'meta'", "JSON"), lambda d: closeloop(d, npz(d, arrays, raw_meta="{kind: rig")))
     c("meta a list", ("'meta'",), lambda d: closeloop(d, npz(d, arrays, raw_meta="[1, 2]")))
-    c("meta settle NaN", ("meta key 'settle_s'",), lambda d: closeloop(d, npz(d, arrays, {**meta, "settle_s": float("nan")})))
-    c("meta seed text", ("meta key 'excitation.seed'",),
-      lambda d: closeloop(d, npz(d, arrays, {**meta, "excitation": {**meta["excitation"], "seed": "abc"}})))
-    c("meta excitation a list", ("meta key 'excitation'",), lambda d: closeloop(d, npz(d, arrays, {**meta, "excitation": [1]})))
-    c("meta start unknown", ("meta key 'start'",), lambda d: closeloop(d, npz(d, arrays, {**meta, "start": "hovering"})))
+    c(
+        "meta settle NaN",
+        ("meta key 'settle_s'",),
+        lambda d: closeloop(d, npz(d, arrays, {**meta, "settle_s": float("nan")})),
+    )
+    c(
+        "meta seed text",
+        ("meta key 'excitation.seed'",),
+        lambda d: closeloop(d, npz(d, arrays, {**meta, "excitation": {**meta["excitation"], "seed": "abc"}})),
+    )
+    c(
+        "meta excitation a list",
+        ("meta key 'excitation'",),
+        lambda d: closeloop(d, npz(d, arrays, {**meta, "excitation": [1]})),
+    )
+    c(
+        "meta start unknown",
+        ("meta key 'start'",),
+        lambda d: closeloop(d, npz(d, arrays, {**meta, "start": "hovering"})),
+    )
     for col in ("fs_hz", "t", "x_meas", "y_ss", "i_xneg", "u_y"):
-        c(f"column {col} missing", (col, "missing"), functools.partial(lambda d, col: npz_case(d, **{col: None}), col=col))
+        c(
+            f"column {col} missing",
+            (col, "missing"),
+            functools.partial(lambda d, col: npz_case(d, **{col: None}), col=col),
+        )
     c("NaN in a column", ("'x_meas'", "non-finite"), lambda d: npz_case(d, x_meas=np.r_[arrays["x_meas"][:-1], np.nan]))
-    c("infinity in a column", ("'i_xneg'", "non-finite"), lambda d: npz_case(d, i_xneg=np.r_[np.inf, arrays["i_xneg"][1:]]))
+    c(
+        "infinity in a column",
+        ("'i_xneg'", "non-finite"),
+        lambda d: npz_case(d, i_xneg=np.r_[np.inf, arrays["i_xneg"][1:]]),
+    )
     c("text column", ("'u_x'",), lambda d: npz_case(d, u_x=np.array(["a"] * n)))
     c("complex column", ("'u_y'",), lambda d: npz_case(d, u_y=arrays["u_y"].astype(complex)))
     c("short column", ("'y_ss'",), lambda d: npz_case(d, y_ss=arrays["y_ss"][:-3]))
@@ -588,18 +788,34 @@ def _npz_cases() -> list[Case]:
     c("fs_hz text", ("'fs_hz'",), lambda d: npz_case(d, fs_hz=np.asarray("fast")))
     c("fs_hz disagrees with t", ("'fs_hz'", "'t'"), lambda d: npz_case(d, fs_hz=np.asarray(1000.0)))
     c("t not uniform", ("'t'",), lambda d: npz_case(d, t=arrays["t"] ** 1.01))
-    c("another sampling rate than the model's", ("'fs_hz'", "controller.fs_hz"),
-      lambda d: npz_case(d, fs_hz=np.asarray(10000.0), t=np.arange(n) / 10000.0))
-    c("too short to split", ("too short",), lambda d: closeloop(d, npz(d, {k: (v[:8000] if np.ndim(v) else v)
-                                                                            for k, v in arrays.items()}, meta)))
+    c(
+        "another sampling rate than the model's",
+        ("'fs_hz'", "controller.fs_hz"),
+        lambda d: npz_case(d, fs_hz=np.asarray(10000.0), t=np.arange(n) / 10000.0),
+    )
+    c(
+        "too short to split",
+        ("too short",),
+        lambda d: closeloop(d, npz(d, {k: (v[:8000] if np.ndim(v) else v) for k, v in arrays.items()}, meta)),
+    )
     c("optional column with NaN", ("'inj_x'",), lambda d: npz_case(d, inj_x=np.full(n, np.nan), inj_y=np.zeros(n)))
-    c("no excitation (all zero)", ("'r_x'", "'r_y'", "constant"), lambda d: npz_case(d, r_x=np.zeros(n), r_y=np.zeros(n)))
+    c(
+        "no excitation (all zero)",
+        ("'r_x'", "'r_y'", "constant"),
+        lambda d: npz_case(d, r_x=np.zeros(n), r_y=np.zeros(n)),
+    )
     c("positions in mm", ("'x_meas'", "airgap", "mm"), lambda d: npz_case(d, **scaled(POSITIONS, 1e3)))
     c("positions in um", ("'x_meas'", "airgap"), lambda d: npz_case(d, **scaled(POSITIONS, 1e6)))
     c("currents in mA", ("'i_ypos'", "mA"), lambda d: npz_case(d, **scaled(CURRENTS, 1e3)))
     c("controller outputs in mA", ("'u_x'", "controller.u_max_a"), lambda d: npz_case(d, **scaled(("u_x", "u_y"), 1e3)))
-    rows.append(Case("npz unknown extension", "npz", lambda d: closeloop(d, existing(d / "d.mat", "x")),
-                     ("d.mat", "unknown data format")))
+    rows.append(
+        Case(
+            "npz unknown extension",
+            "npz",
+            lambda d: closeloop(d, existing(d / "d.mat", "x")),
+            ("d.mat", "unknown data format"),
+        )
+    )
     c("file missing", ("not found",), lambda d: closeloop(d, d / "d.npz"))
     c("read fails (I/O error)", ("readable",), lambda d: closeloop(d, io_error_file(d / "d.npz")))
     c("unreadable (permission)", ("readable",), lambda d: closeloop(d, unreadable(npz(d))))
@@ -620,13 +836,28 @@ def _csv_cases() -> list[Case]:
     c("no sidecar", csv_ + ("sidecar",), lambda d: csv(d, text=_csv_text(), sidecar=False))
     c("sidecar malformed", side + ("JSON",), lambda d: csv(d, text=_csv_text(), sidecar='{"fs_hz": 83300, '))
     c("sidecar a list", side + ("object",), lambda d: csv(d, text=_csv_text(), sidecar="[83300]"))
-    c("sidecar fs_hz text", side + ("'fs_hz'",), lambda d: csv(d, text=_csv_text(), sidecar={"fs_hz": "fast", "meta": meta}))
+    c(
+        "sidecar fs_hz text",
+        side + ("'fs_hz'",),
+        lambda d: csv(d, text=_csv_text(), sidecar={"fs_hz": "fast", "meta": meta}),
+    )
     c("sidecar fs_hz NaN", side + ("'fs_hz'", "finite"), lambda d: csv(d, text=_csv_text(), sidecar='{"fs_hz": NaN}'))
     c("sidecar fs_hz boolean", side + ("'fs_hz'",), lambda d: csv(d, text=_csv_text(), sidecar={"fs_hz": True}))
-    c("sidecar without fs_hz", side + ("'fs_hz'", "missing"), lambda d: csv(d, text=_csv_text(), sidecar={"meta": meta}))
-    c("sidecar meta not JSON", side + ("'meta'",), lambda d: csv(d, text=_csv_text(), sidecar={"fs_hz": 83300.0, "meta": "{k"}))
-    c("sidecar meta NaN", side + ("settle_s", "finite"),
-      lambda d: csv(d, text=_csv_text(), sidecar='{"fs_hz": 83300.0, "meta": {"settle_s": NaN}}'))
+    c(
+        "sidecar without fs_hz",
+        side + ("'fs_hz'", "missing"),
+        lambda d: csv(d, text=_csv_text(), sidecar={"meta": meta}),
+    )
+    c(
+        "sidecar meta not JSON",
+        side + ("'meta'",),
+        lambda d: csv(d, text=_csv_text(), sidecar={"fs_hz": 83300.0, "meta": "{k"}),
+    )
+    c(
+        "sidecar meta NaN",
+        side + ("settle_s", "finite"),
+        lambda d: csv(d, text=_csv_text(), sidecar='{"fs_hz": 83300.0, "meta": {"settle_s": NaN}}'),
+    )
     c("sidecar a folder", ("d.json",), lambda d: (d / "d.json").mkdir() or csv(d, text=_csv_text(), sidecar=False))
     c("empty", csv_ + ("empty",), lambda d: csv(d, text=""))
     c("header only", csv_ + ("no data rows",), lambda d: csv(d, text=",".join(cols) + "\n"))
@@ -635,26 +866,66 @@ def _csv_cases() -> list[Case]:
     c("NaN cell", csv_ + ("'y_ss'", "non-finite"), lambda d: csv(d, text=_cell(6, "y_ss", "nan")))
     c("short row", csv_ + ("line 6",), lambda d: csv(d, text=_cell(6, "y_ss", "1,2")))
     c("repeated column", csv_ + ("'t'", "more than once"), lambda d: csv(d, text=",".join(cols + ["t"]) + "\n1\n"))
-    c("binary", csv_ + ("UTF-8",), lambda d: (existing(d / "d.json", json.dumps({"fs_hz": 83300.0, "meta": meta})),
-                                              closeloop(d, binary(d / "d.csv")))[1])
-    c("a folder", csv_ + ("cannot be read",), lambda d: ((d / "d.csv").mkdir(),
-                                                       (d / "d.json").write_text(json.dumps({"fs_hz": 83300.0})),
-                                                       closeloop(d, d / "d.csv"))[2])
-    c("read fails (I/O error)", csv_ + ("cannot be read",),
-      lambda d: (existing(d / "d.json", json.dumps({"fs_hz": 83300.0, "meta": meta})),
-                 closeloop(d, io_error_file(d / "d.csv")))[1])
-    c("unreadable (permission)", csv_ + ("cannot be read",),
-      lambda d: (existing(d / "d.json", json.dumps({"fs_hz": 83300.0, "meta": meta})),
-                 closeloop(d, unreadable(existing(d / "d.csv", _csv_text()))))[1])
-    c("column missing", csv_ + ("y_ss", "missing"),
-      lambda d: csv(d, text="\n".join(",".join(p for i, p in enumerate(ln.split(",")) if i != 5)
-                                      for ln in _csv_text().splitlines()) + "\n"))
-    c("fs_hz as a column", csv_ + ("'fs_hz'",),
-      lambda d: csv(d, text="".join(("fs_hz," if i == 0 else "83300.0,") + ln + "\n"
-                                    for i, ln in enumerate(_csv_text().splitlines()))))
+    c(
+        "binary",
+        csv_ + ("UTF-8",),
+        lambda d: (
+            existing(d / "d.json", json.dumps({"fs_hz": 83300.0, "meta": meta})),
+            closeloop(d, binary(d / "d.csv")),
+        )[1],
+    )
+    c(
+        "a folder",
+        csv_ + ("cannot be read",),
+        lambda d: (
+            (d / "d.csv").mkdir(),
+            (d / "d.json").write_text(json.dumps({"fs_hz": 83300.0})),
+            closeloop(d, d / "d.csv"),
+        )[2],
+    )
+    c(
+        "read fails (I/O error)",
+        csv_ + ("cannot be read",),
+        lambda d: (
+            existing(d / "d.json", json.dumps({"fs_hz": 83300.0, "meta": meta})),
+            closeloop(d, io_error_file(d / "d.csv")),
+        )[1],
+    )
+    c(
+        "unreadable (permission)",
+        csv_ + ("cannot be read",),
+        lambda d: (
+            existing(d / "d.json", json.dumps({"fs_hz": 83300.0, "meta": meta})),
+            closeloop(d, unreadable(existing(d / "d.csv", _csv_text()))),
+        )[1],
+    )
+    c(
+        "column missing",
+        csv_ + ("y_ss", "missing"),
+        lambda d: csv(
+            d,
+            text="\n".join(
+                ",".join(p for i, p in enumerate(ln.split(",")) if i != 5) for ln in _csv_text().splitlines()
+            )
+            + "\n",
+        ),
+    )
+    c(
+        "fs_hz as a column",
+        csv_ + ("'fs_hz'",),
+        lambda d: csv(
+            d,
+            text="".join(
+                ("fs_hz," if i == 0 else "83300.0,") + ln + "\n" for i, ln in enumerate(_csv_text().splitlines())
+            ),
+        ),
+    )
     c("semicolons", csv_ + ("not a number",), lambda d: csv(d, text=_csv_text().replace(",", ";")))
-    c("positions in mm", csv_ + ("'x_meas'", "airgap"),
-      lambda d: csv(d, arrays={**_demo()[0], **scaled(POSITIONS, 1e3)}))
+    c(
+        "positions in mm",
+        csv_ + ("'x_meas'", "airgap"),
+        lambda d: csv(d, arrays={**_demo()[0], **scaled(POSITIONS, 1e3)}),
+    )
     return rows
 
 
@@ -677,65 +948,162 @@ def _cli_cases() -> list[Case]:
     sc = lambda d: scenario(d)[1]  # noqa: E731  a valid scenario file
 
     for cmd in ("simulate", "rig"):
+
         def argv(d, out, cmd=cmd, *extra):
             base = simulate(d) if cmd == "simulate" else ["rig", sc(d), "--out", d / "rig.npz", "--quiet"]
             i = base.index("--out")
-            return base[:i + 1] + [out] + base[i + 2:] + list(extra)
+            return base[: i + 1] + [out] + base[i + 2 :] + list(extra)
 
-        c(f"{cmd} --out not .npz", ("--out", "x.txt", ".npz"), functools.partial(lambda d, a: a(d, d / "x.txt"), a=argv))
-        c(f"{cmd} --out under a file", ("--out", "afile", "not a folder"),
-          functools.partial(lambda d, a: a(d, existing(d / "afile") / "x.npz"), a=argv))
-        c(f"{cmd} --out a folder", ("--out", "x.npz", "folder"),
-          functools.partial(lambda d, a: (d / "x.npz").mkdir() or a(d, d / "x.npz"), a=argv))
-        c(f"{cmd} --out whose sidecar is a folder", ("--out", "x.json", "folder"),
-          functools.partial(lambda d, a: (d / "x.json").mkdir() or a(d, d / "x.npz"), a=argv))
-        c(f"{cmd} --out exists", ("--out", "x.npz", "--force"),
-          functools.partial(lambda d, a: a(d, existing(d / "x.npz").with_suffix(".npz")), a=argv))
-        c(f"{cmd} --out next to the user's data.json", ("--out", "data.json", "--force"),
-          functools.partial(lambda d, a: (existing(d / "data.csv"), existing(d / "data.json", '{"fs_hz": 1}'),
-                                          a(d, d / "data.npz"))[2], a=argv))
-        c(f"{cmd} --out into a read-only folder", ("--out", "ro", "cannot write"),
-          functools.partial(lambda d, a: a(d, readonly(d / "ro") / "x.npz"), a=argv))
-        c(f"{cmd} --out under a read-only folder", ("--out", "ro", "cannot write"),
-          functools.partial(lambda d, a: a(d, readonly(d / "ro") / "sub" / "x.npz"), a=argv))
+        c(
+            f"{cmd} --out not .npz",
+            ("--out", "x.txt", ".npz"),
+            functools.partial(lambda d, a: a(d, d / "x.txt"), a=argv),
+        )
+        c(
+            f"{cmd} --out under a file",
+            ("--out", "afile", "not a folder"),
+            functools.partial(lambda d, a: a(d, existing(d / "afile") / "x.npz"), a=argv),
+        )
+        c(
+            f"{cmd} --out a folder",
+            ("--out", "x.npz", "folder"),
+            functools.partial(lambda d, a: (d / "x.npz").mkdir() or a(d, d / "x.npz"), a=argv),
+        )
+        c(
+            f"{cmd} --out whose sidecar is a folder",
+            ("--out", "x.json", "folder"),
+            functools.partial(lambda d, a: (d / "x.json").mkdir() or a(d, d / "x.npz"), a=argv),
+        )
+        c(
+            f"{cmd} --out exists",
+            ("--out", "x.npz", "--force"),
+            functools.partial(lambda d, a: a(d, existing(d / "x.npz").with_suffix(".npz")), a=argv),
+        )
+        c(
+            f"{cmd} --out next to the user's data.json",
+            ("--out", "data.json", "--force"),
+            functools.partial(
+                lambda d, a: (
+                    existing(d / "data.csv"),
+                    existing(d / "data.json", '{"fs_hz": 1}'),
+                    a(d, d / "data.npz"),
+                )[2],
+                a=argv,
+            ),
+        )
+        c(
+            f"{cmd} --out into a read-only folder",
+            ("--out", "ro", "cannot write"),
+            functools.partial(lambda d, a: a(d, readonly(d / "ro") / "x.npz"), a=argv),
+        )
+        c(
+            f"{cmd} --out under a read-only folder",
+            ("--out", "ro", "cannot write"),
+            functools.partial(lambda d, a: a(d, readonly(d / "ro") / "sub" / "x.npz"), a=argv),
+        )
     data = lambda d: npz(d)  # noqa: E731
-    c("closeloop --out a file", ("--out", "afile"), lambda d: closeloop(d, data(d))[:2] + ["--out", existing(d / "afile")])
-    c("closeloop --out with foreign files", ("--out", "notes.txt"),
-      lambda d: (existing(d / "out" / "notes.txt"), closeloop(d, data(d)))[1])
-    c("closeloop --out with a previous analysis", ("--out", "--force"),
-      lambda d: (existing(d / "out" / "closeloop.json", "{}"), closeloop(d, data(d)))[1])
-    c("closeloop --out into a read-only folder", ("--out", "cannot write"),
-      lambda d: closeloop(d, data(d))[:2] + ["--out", readonly(d / "ro") / "out", "--quiet"])
-    c("closeloop --out a read-only previous output", ("--out", "cannot write"),
-      lambda d: (existing(d / "ro" / "out" / "closeloop.json", "{}"),
-                 closeloop(d, data(d))[:2] + ["--out", readonly(d / "ro") / "out", "--force", "--quiet"])[1])
+    c(
+        "closeloop --out a file",
+        ("--out", "afile"),
+        lambda d: closeloop(d, data(d))[:2] + ["--out", existing(d / "afile")],
+    )
+    c(
+        "closeloop --out with foreign files",
+        ("--out", "notes.txt"),
+        lambda d: (existing(d / "out" / "notes.txt"), closeloop(d, data(d)))[1],
+    )
+    c(
+        "closeloop --out with a previous analysis",
+        ("--out", "--force"),
+        lambda d: (existing(d / "out" / "closeloop.json", "{}"), closeloop(d, data(d)))[1],
+    )
+    c(
+        "closeloop --out into a read-only folder",
+        ("--out", "cannot write"),
+        lambda d: closeloop(d, data(d))[:2] + ["--out", readonly(d / "ro") / "out", "--quiet"],
+    )
+    c(
+        "closeloop --out a read-only previous output",
+        ("--out", "cannot write"),
+        lambda d: (
+            existing(d / "ro" / "out" / "closeloop.json", "{}"),
+            closeloop(d, data(d))[:2] + ["--out", readonly(d / "ro") / "out", "--force", "--quiet"],
+        )[1],
+    )
     c("closeloop --workers 0", ("--workers",), lambda d: closeloop(d, data(d))[:-1] + ["0"], area="cli")
     c("closeloop --workers text", ("--workers",), lambda d: closeloop(d, data(d))[:-1] + ["two"], area="cli")
-    c("simulate unknown experiment", ("nope",), lambda d: ["simulate", "--experiment", "nope", "--out", d / "x.npz"], area="cli")
+    c(
+        "simulate unknown experiment",
+        ("nope",),
+        lambda d: ["simulate", "--experiment", "nope", "--out", d / "x.npz"],
+        area="cli",
+    )
     c("simulate without --out", ("--out",), lambda d: ["simulate", "--experiment", "levitate"], area="cli")
     c("rig without a scenario", ("scenario",), lambda d: ["rig", "--out", d / "x.npz"], area="cli")
     c("unknown command", ("fly",), lambda d: ["fly"], area="cli")
     c("unknown option", ("--colour",), lambda d: simulate(d, "--colour", "red"), area="cli")
     cl = lambda d, **e: closeloop(d, data(d), "--config", config_file(d, **e))  # noqa: E731
-    c("closeloop --config unknown calibration key", ("c.yaml", "closeloop.calibration.table1.mass_kgg"),
-      lambda d: cl(d, closeloop__calibration={"table1.mass_kgg": 0.03}), area="config")
-    c("closeloop --config calibration of a text key", ("c.yaml", "closeloop.calibration.magnetics.eddy_model"),
-      lambda d: cl(d, closeloop__calibration={"magnetics.eddy_model": 0.03}), area="config")
-    c("closeloop --config calibration tolerance 0", ("c.yaml", "closeloop.calibration"),
-      lambda d: cl(d, closeloop__calibration={"table1.mass_kg": 0.0}), area="config")
-    c("closeloop --config fit fraction 2", ("c.yaml", "closeloop.fit_fraction"),
-      lambda d: cl(d, closeloop__fit_fraction=2.0), area="config")
-    c("closeloop --config unknown key", ("c.yaml", "closeloop", "fit_fractions"),
-      lambda d: cl(d, closeloop__fit_fractions=0.5), area="config")
-    c("closeloop --config unknown estimate key", ("c.yaml", "closeloop.estimate", "iterations"),
-      lambda d: cl(d, closeloop__estimate={"iterations": 3}), area="config")
-    c("closeloop --config default dataset not listed", ("c.yaml", "closeloop.default_dataset"),
-      lambda d: cl(d, closeloop__default_dataset="nope"), area="config")
-    c("closeloop --config binary", ("b.yaml", "UTF-8"),
-      lambda d: closeloop(d, data(d), "--config", binary(d / "b.yaml")), area="config")
-    c("closeloop --config duplicate key", ("c.yaml", "closeloop.replay_seeds", "twice"),
-      lambda d: closeloop(d, data(d), "--config", config_file(d, text=replace_once(
-          CONFIG_TEXT, "\ncloseloop:", "\ncloseloop:\n  replay_seeds: 4\n  replay_seeds: 5"))), area="config")
+    c(
+        "closeloop --config unknown calibration key",
+        ("c.yaml", "closeloop.calibration.table1.mass_kgg"),
+        lambda d: cl(d, closeloop__calibration={"table1.mass_kgg": 0.03}),
+        area="config",
+    )
+    c(
+        "closeloop --config calibration of a text key",
+        ("c.yaml", "closeloop.calibration.magnetics.eddy_model"),
+        lambda d: cl(d, closeloop__calibration={"magnetics.eddy_model": 0.03}),
+        area="config",
+    )
+    c(
+        "closeloop --config calibration tolerance 0",
+        ("c.yaml", "closeloop.calibration"),
+        lambda d: cl(d, closeloop__calibration={"table1.mass_kg": 0.0}),
+        area="config",
+    )
+    c(
+        "closeloop --config fit fraction 2",
+        ("c.yaml", "closeloop.fit_fraction"),
+        lambda d: cl(d, closeloop__fit_fraction=2.0),
+        area="config",
+    )
+    c(
+        "closeloop --config unknown key",
+        ("c.yaml", "closeloop", "fit_fractions"),
+        lambda d: cl(d, closeloop__fit_fractions=0.5),
+        area="config",
+    )
+    c(
+        "closeloop --config unknown estimate key",
+        ("c.yaml", "closeloop.estimate", "iterations"),
+        lambda d: cl(d, closeloop__estimate={"iterations": 3}),
+        area="config",
+    )
+    c(
+        "closeloop --config default dataset not listed",
+        ("c.yaml", "closeloop.default_dataset"),
+        lambda d: cl(d, closeloop__default_dataset="nope"),
+        area="config",
+    )
+    c(
+        "closeloop --config binary",
+        ("b.yaml", "UTF-8"),
+        lambda d: closeloop(d, data(d), "--config", binary(d / "b.yaml")),
+        area="config",
+    )
+    c(
+        "closeloop --config duplicate key",
+        ("c.yaml", "closeloop.replay_seeds", "twice"),
+        lambda d: closeloop(
+            d,
+            data(d),
+            "--config",
+            config_file(
+                d, text=replace_once(CONFIG_TEXT, "\ncloseloop:", "\ncloseloop:\n  replay_seeds: 4\n  replay_seeds: 5")
+            ),
+        ),
+        area="config",
+    )
     return rows
 
 
@@ -746,14 +1114,23 @@ def _note_cases() -> list[Case]:
     rows = []
 
     def c(id, names, **changes):
-        rows.append(Case(f"note {id}", "note", functools.partial(lambda d, ch: demo(**ch), ch=changes),
-                         tuple(names), kind="note"))
+        rows.append(
+            Case(
+                f"note {id}", "note", functools.partial(lambda d, ch: demo(**ch), ch=changes), tuple(names), kind="note"
+            )
+        )
 
     a = arrays
     c("x and y positions swapped", ("'x_meas'", "'y_meas'", "swapped"), x_meas=a["y_meas"], y_meas=a["x_meas"])
     c("y_ss follows x", ("'y_ss'", "swapped"), y_ss=a["x_meas"])
-    c("x and y currents swapped", ("'i_xpos'", "swapped"), i_xpos=a["i_ypos"], i_xneg=a["i_yneg"], i_ypos=a["i_xpos"],
-      i_yneg=a["i_xneg"])
+    c(
+        "x and y currents swapped",
+        ("'i_xpos'", "swapped"),
+        i_xpos=a["i_ypos"],
+        i_xneg=a["i_yneg"],
+        i_ypos=a["i_xpos"],
+        i_yneg=a["i_xneg"],
+    )
     c("upper and lower coils swapped", ("'i_ypos'", "'i_yneg'", "swapped"), i_ypos=a["i_yneg"], i_yneg=a["i_ypos"])
     c("controller outputs swapped", ("'u_x'", "'u_y'", "swapped"), u_x=a["u_y"], u_y=a["u_x"])
     c("constant y_ss", ("'y_ss'", "constant"), y_ss=np.full(n, 2e-6))
@@ -779,6 +1156,7 @@ def _workflow_cases() -> list[Case]:
         def make(wd):
             (wd / "bad.yaml").write_text(text)
             return ["-n", "--cores", "1", "--configfile", "config.yaml", "bad.yaml"]
+
         return make
 
     def dup(wd):
@@ -797,26 +1175,60 @@ def _workflow_cases() -> list[Case]:
     c("airgap in mm", ("bad.yaml", "table1.airgap_m", "plausible"), extra("table1: {airgap_m: 0.6}\n"))
     c("NaN in a config file", ("bad.yaml", "table1.mass_kg", "finite"), extra("table1: {mass_kg: .nan}\n"))
     c("unknown key", ("bad.yaml", "table1", "mass_kgs"), extra("table1: {mass_kgs: 3.0}\n"))
-    c("scenario override airgap in mm", ("run 'wide'", "table1.airgap_m", "plausible"),
-      extra("scenarios: {wide: {table1.airgap_m: 0.6}}\n"))
-    c("scenario override of no key", ("wide", "table1.airgap_mm"), extra("scenarios: {wide: {table1.airgap_mm: 0.6}}\n"))
-    c("study value in mm", ("airgap=0.6", "table1.airgap_m"),
-      extra("study: {assumptions: {airgap: {key: table1.airgap_m, values: [0.6]}}, "
-            "criteria: {mu_peak_factor: 1.5, fit_y_points: 5}}\n"))
-    c("duration 1e9 s", ("experiments.levitate.duration_s", "samples"),
-      extra("experiments: {levitate: {duration_s: 1.0e+9, start: rest, excitation: {kind: none}}}\n"))
-    c("closeloop calibration of no key", ("closeloop.calibration.table1.mass_kgg",),
-      extra("closeloop: {calibration: {table1.mass_kgg: 0.03}}\n"))
-    c("closeloop data set not found", ("closeloop.datasets.gone", "gone.npz"),
-      extra("closeloop: {datasets: {gone: gone.npz}, default_dataset: gone}\n"))
-    c("closeloop data with NaN: the failed job's log", ("bad.npz", "'x_meas'", "non-finite"), nan_data, status=1,
-      log="results/logs/closeloop/bad.log")
+    c(
+        "scenario override airgap in mm",
+        ("run 'wide'", "table1.airgap_m", "plausible"),
+        extra("scenarios: {wide: {table1.airgap_m: 0.6}}\n"),
+    )
+    c(
+        "scenario override of no key",
+        ("wide", "table1.airgap_mm"),
+        extra("scenarios: {wide: {table1.airgap_mm: 0.6}}\n"),
+    )
+    c(
+        "study value in mm",
+        ("airgap=0.6", "table1.airgap_m"),
+        extra(
+            "study: {assumptions: {airgap: {key: table1.airgap_m, values: [0.6]}}, "
+            "criteria: {mu_peak_factor: 1.5, fit_y_points: 5}}\n"
+        ),
+    )
+    c(
+        "duration 1e9 s",
+        ("experiments.levitate.duration_s", "samples"),
+        extra("experiments: {levitate: {duration_s: 1.0e+9, start: rest, excitation: {kind: none}}}\n"),
+    )
+    c(
+        "closeloop calibration of no key",
+        ("closeloop.calibration.table1.mass_kgg",),
+        extra("closeloop: {calibration: {table1.mass_kgg: 0.03}}\n"),
+    )
+    c(
+        "closeloop data set not found",
+        ("closeloop.datasets.gone", "gone.npz"),
+        extra("closeloop: {datasets: {gone: gone.npz}, default_dataset: gone}\n"),
+    )
+    c(
+        "closeloop data with NaN: the failed job's log",
+        ("bad.npz", "'x_meas'", "non-finite"),
+        nan_data,
+        status=1,
+        log="results/logs/closeloop/bad.log",
+    )
     return rows
 
 
 def all_cases() -> list[Case]:
-    rows = (_cfg_cases() + _set_cases() + _scenario_cases() + _npz_cases() + _csv_cases() + _cli_cases()
-            + _note_cases() + _workflow_cases())
+    rows = (
+        _cfg_cases()
+        + _set_cases()
+        + _scenario_cases()
+        + _npz_cases()
+        + _csv_cases()
+        + _cli_cases()
+        + _note_cases()
+        + _workflow_cases()
+    )
     ids = [r.id for r in rows]
     dup = sorted({i for i in ids if ids.count(i) > 1})
     assert not dup, dup
@@ -872,7 +1284,7 @@ def _run_cli(case: Case, folder: Path, subprocess_cli: bool) -> Outcome:
                 status = main(argv)
         except SystemExit as exc:
             status = exc.code if isinstance(exc.code, int) else 1
-        except Exception:      # a traceback at the command line
+        except Exception:  # a traceback at the command line
             return Outcome(case, "traceback", traceback.format_exc()[-2000:])
         err = err_io.getvalue()
     verdict, detail = _verdict(case, status, err, before, _snapshot(folder))
@@ -889,7 +1301,7 @@ def _run_note(case: Case) -> Outcome:
     try:
         validate_measured(arrays, "d.npz")
         check_measured(arrays, cfg, "d.npz", meta)
-    except Exception as exc:     # a note case holds valid, possible data
+    except Exception as exc:  # a note case holds valid, possible data
         return Outcome(case, "wrong status", f"rejected: {exc}")
     notes = measured_notes(arrays, meta, cfg)
     hit = [n for n in notes if all(w in n for w in case.names)]
@@ -935,8 +1347,11 @@ def _run_workflow(case: Case, wd: Path) -> Outcome:
         line = log.read_text() if log.exists() else ""
         if not line:
             return Outcome(case, "unnamed", f"{case.log} empty or missing")
-        outputs = [p for p in (wd / "results").rglob("*") if p.is_file() and "logs" not in p.parts
-                   and "benchmarks" not in p.parts]
+        outputs = [
+            p
+            for p in (wd / "results").rglob("*")
+            if p.is_file() and "logs" not in p.parts and "benchmarks" not in p.parts
+        ]
         if outputs:
             return Outcome(case, "wrote files", ", ".join(p.name for p in outputs[:5]))
     missing = [n for n in case.names if n not in line]

@@ -1,6 +1,7 @@
-"""The bad-input table (:mod:`badinputs`, issue 24): every row stops as the README says, with
+"""The bad-input table (:mod:`badinputs`): every row stops as the README says, with
 one line naming the file and the key or column and nothing written, or (valid but suspicious
 data) gets its plausibility note. ``bench/bad_inputs.py`` re-runs the table and prints counts."""
+
 from __future__ import annotations
 
 import pytest
@@ -21,7 +22,9 @@ def workflow_dir(tmp_path_factory):
 
 def test_the_table_is_wide():
     areas = {c.area for c in CASES}
-    assert len(CASES) >= 170 and {"config", "set", "scenario", "npz", "csv", "output", "cli", "note", "workflow"} <= areas
+    assert (
+        len(CASES) >= 170 and {"config", "set", "scenario", "npz", "csv", "output", "cli", "note", "workflow"} <= areas
+    )
 
 
 @pytest.mark.parametrize("case", [_param(c) for c in CASES])

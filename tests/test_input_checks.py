@@ -1,4 +1,4 @@
-"""The checks behind the bad-input table (issue 24) that a table row cannot show: the load
+"""The checks behind the bad-input table that a table row cannot show: the load
 capacity is an upper bound of what the simulator carries, valid data get no plausibility note,
 --force overwrites, the memory check names the experiment, YAML keys repeated deep inside."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A failed workflow job says why in its log (issue 24): :func:`ssamb.stages.job_log`, which
+"""A failed workflow job says why in its log: :func:`ssamb.stages.job_log`, which
 every workflow script runs its job in."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The workflow and its inputs (issue 24): a changed subsystem's order reruns that subsystem
+"""The workflow and its inputs: a changed subsystem's order reruns that subsystem
 only, an unchanged config lists no params change, and what an interruption leaves (the README's
 "Resuming after an interruption"). Bad configs and a failed job's log: the workflow rows of the
 bad-input table (tests/badinputs.py)."""
