@@ -31,8 +31,9 @@ BIAS = SimpleNamespace(
     NAME="bias", REQUIRED=("force_n",), OPTIONAL=(), SIGNATURE="an offset of u, none of y", SEARCHABLE=True,
     NEEDS_HINT=False, validate=lambda p, where: p, evidence=_evidence,
     claim=lambda ft, hints, df, st: ft.offsets["u"]["z"] ** 2,
-    model=lambda hints, rec, st: EffectModel("bias", ("force_n",), np.zeros(1), np.full(1, 0.05), np.full(1, -10.0),
-                                             np.full(1, 10.0), lambda t: [{"name": "bias", "force_n": float(t[0])}], {}),
+    model=lambda hints, rec, st: EffectModel("bias", ("force_n",), np.zeros(1), np.full(1, 0.05),
+                                             np.full(1, -10.0), np.full(1, 10.0),
+                                             lambda t: [{"name": "bias", "force_n": float(t[0])}], {}),
     report=lambda m, th, se, sig: [{"name": "bias", "params": {"force_n": float(th[0])},
                                     "uncertainty": {"force_n": float(se[0])}}])
 

@@ -69,7 +69,8 @@ def make_split(rec: Record, fit_fraction: float, discard_s: float, min_fit_s: fl
     fs = rec.fs_hz
     a, n = usable_range(rec)
     need = discard_s + min_fit_s + min_holdout_s
-    where = "" if (a, n) == (0, rec.n) else f" in its longest usable stretch ({a / fs:.4g}-{n / fs:.4g} s: {rec.usable_reason})"
+    where = ("" if (a, n) == (0, rec.n)
+             else f" in its longest usable stretch ({a / fs:.4g}-{n / fs:.4g} s: {rec.usable_reason})")
     too_short = DataError(
         f"{source}: too short to split: {(n - a) / fs:.4g} s of data{where}; the analysis discards {discard_s:g} s of "
         f"start-up and needs at least {min_fit_s:g} s to fit and {min_holdout_s:g} s held out "

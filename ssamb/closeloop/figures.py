@@ -175,7 +175,8 @@ def _ratios(art: dict, meas: dict, models: dict, out_dir: Path, names: list) -> 
         ft = compute_features(art["record"], art["comparison"].fit.frame, meas, models[label], art["settings"])
         for name, r in ft.ratios.items():
             if name not in ("y", "y_plant"):          # the AMB's y paths beside its sensor path
-                axs[0].semilogx(r["f_hz"], 20 * np.log10(np.abs(r["R"])), ls, marker=".", label=f"{r['path']} ({label})")
+                axs[0].semilogx(r["f_hz"], 20 * np.log10(np.abs(r["R"])), ls, marker=".",
+                                label=f"{r['path']} ({label})")
                 axs[1].semilogx(r["f_hz"], np.degrees(np.unwrap(np.angle(r["R"]))), ls, marker=".",
                                 label=f"{r['path']} ({label})")
                 drew = True

@@ -118,8 +118,8 @@ def _notes(rec, effects, cal_block, not_ident) -> list:
                          "it was found by fitting each library effect and rests on the held-out error alone")
     for p in cal_block.get("parameters", []):
         if p["identified"] and abs(p["z_from_nominal"]) > 3:
-            notes.append(f"{p['key']}: {p['value']:.6g} lies {abs(p['z_from_nominal']):.1f} tolerances from its nominal "
-                         f"value {p['nominal']:.6g}: outside the stated tolerance")
+            notes.append(f"{p['key']}: {p['value']:.6g} lies {abs(p['z_from_nominal']):.1f} tolerances from its "
+                         f"nominal value {p['nominal']:.6g}: outside the stated tolerance")
     return notes
 
 
@@ -154,7 +154,8 @@ def _summary(effects, unexplained, params) -> str:
     cal = (f"calibrated {len(params)} nominal parameter{'s' if len(params) != 1 else ''}"
            if params else "no nominal parameter identified")
     if unexplained and not effects:
-        return f"{cal}; no library effect explains the residual; it is not consistent with noise (see remaining_signature)"
+        return (f"{cal}; no library effect explains the residual; it is not consistent with noise "
+                "(see remaining_signature)")
     if unexplained:
         return (f"{cal}; found {', '.join(e['name'] for e in effects)}; a residual that no library effect explains "
                 "remains (see remaining_signature)")
@@ -250,12 +251,14 @@ def findings_text(rep: dict) -> list[str]:
         unc = e.get("uncertainty", {})
         par = ", ".join(f"{k} = {v:.4g}" + (f" +- {unc[k]:.2g}" if isinstance(unc.get(k), float) else "")
                         if isinstance(v, float) else f"{k} = {v}" for k, v in e["params"].items())
-        why = (f"removes {100 * e['error_reduction']:.0f} % of the residual excess" if e.get("error_reduction") is not None
-               else f"held-out z {e.get('holdout_z', float('nan')):.1f}")
+        why = (f"removes {100 * e['error_reduction']:.0f} % of the residual excess"
+               if e.get("error_reduction") is not None else f"held-out z {e.get('holdout_z', float('nan')):.1f}")
         out.append(f"effect {e['name']}: {par} ({why})")
     for c in rep["error_before"]:
-        if "per_coil" not in rep["error_before"][c] and any(c in g.get("per_coil", {}) for g in rep["error_before"].values()):
+        grouped = any(c in g.get("per_coil", {}) for g in rep["error_before"].values())
+        if "per_coil" not in rep["error_before"][c] and grouped:
             continue            # a channel of a group: the group's line stands for it
         b, a = rep["error_before"][c], rep["error_after"][c]
-        out.append(f"held-out rms error {c}: {b['rms']:.3g} -> {a['rms']:.3g} (noise {a.get('noise_rms', float('nan')):.3g})")
+        noise = a.get("noise_rms", float("nan"))
+        out.append(f"held-out rms error {c}: {b['rms']:.3g} -> {a['rms']:.3g} (noise {noise:.3g})")
     return out

@@ -1,9 +1,10 @@
 """The AMB's effect library: physical effects a rig may have and the nominal model lacks.
 
-One module per effect (:data:`MODULES`: every module of this package); each holds the effect's parameters and their validation,
-how it enters the simulator (:func:`apply_effects`: kernel-parameter overrides or external-force
-arrays), the signature it leaves in the residual and the evidence for it, its parameterisation
-for fitting and its entry in ``closeloop.json`` (the interface: :class:`ssamb.device.EffectModule`).
+One module per effect (:data:`MODULES`: every module of this package); each holds the effect's
+parameters and their validation, how it enters the simulator (:func:`apply_effects`:
+kernel-parameter overrides or external-force arrays), the signature it leaves in the residual and
+the evidence for it, its parameterisation for fitting and its entry in ``closeloop.json`` (the
+interface: :class:`ssamb.device.EffectModule`).
 Names and parameters:
 
 ==================== =========================================== ======================================

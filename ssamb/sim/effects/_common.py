@@ -54,7 +54,8 @@ def ratio_path(ft, axis: str, st) -> dict | None:
         a, b = ft.ratios.get("y_sensor"), ft.ratios.get("y")
         if a is None or b is None:
             return a or b
-        return a if (a["n_lines"] >= st.ratio_path_min_lines and a["se_tau_s"] <= st.ratio_path_se_factor * b["se_tau_s"]) else b
+        precise = a["se_tau_s"] <= st.ratio_path_se_factor * b["se_tau_s"]
+        return a if (a["n_lines"] >= st.ratio_path_min_lines and precise) else b
     return ft.ratios.get("x")
 
 

@@ -34,7 +34,8 @@ def validate(p: dict, where: str) -> dict:
     return p
 
 
-def check_force_table(cols, where: str, error=EffectError, what: str = "column", header_lines: int | None = None) -> None:
+def check_force_table(cols, where: str, error=EffectError, what: str = "column",
+                      header_lines: int | None = None) -> None:
     """Check a force table like a measured-data file: exactly the columns :data:`FORCE_COLUMNS`,
     of equal length, finite numbers, ``t`` strictly increasing (the force is interpolated
     linearly in ``t`` and held at its end values outside the table; a ``t`` that turns back
@@ -58,7 +59,8 @@ def check_force_table(cols, where: str, error=EffectError, what: str = "column",
             raise error(f"{where}: {what} '{c}' has {a.size} values, 't' has {n} (need the same number, at least one)")
         bad = ~np.isfinite(a)
         if bad.any():
-            raise error(f"{where}: {what} '{c}', {at(int(np.argmax(bad)))}: {float(a[bad][0])!r} is not a finite number")
+            first = at(int(np.argmax(bad)))
+            raise error(f"{where}: {what} '{c}', {first}: {float(a[bad][0])!r} is not a finite number")
     step = np.diff(np.asarray(cols["t"], float))
     if (step <= 0).any():
         k = int(np.argmax(step <= 0))
