@@ -195,3 +195,33 @@ def test_run_recordings_writes_the_report_and_figures(tmp_path):
     with pytest.raises(InputError, match="no held-out"):
         run_recordings(paths, [], tmp_path / "o3", device=FileToy(), progress=False)
     assert not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists()
+
+
+def test_noise_floor_is_the_replays_spread_bounded_by_the_residual():
+    """A model whose noise is the rig's: the floor is the replays' spread (times sqrt(1 + 1/m)).
+    A model three times noisier than the rig above 10 % of Nyquist: the floor falls to what the
+    residual shows there, not the model's own spread."""
+    from scipy import signal
+
+    from ssamb.closeloop.recordings import noise_floor
+
+    rng = np.random.default_rng(3)
+    n, m = 8192, 8
+    b, a = signal.butter(2, 0.1)
+
+    def rig_noise(hf):
+        w = rng.standard_normal(n)
+        lo = signal.lfilter(b, a, w)
+        return lo + hf * (w - signal.lfilter(b, a, w))
+
+    truth = np.sin(np.arange(n) / 200.0)
+    runs = [truth + rig_noise(1.0) for _ in range(m)]
+    meas = truth + rig_noise(1.0)
+    d = noise_floor(meas, np.mean(runs, axis=0), runs)
+    assert d["rms"] == pytest.approx(d["replays_rms"], rel=0.08)
+    assert d["replays_rms"] == pytest.approx(np.std(rig_noise(1.0)) * math.sqrt(1 + 1 / m), rel=0.1)
+    noisy = [truth + rig_noise(3.0) for _ in range(m)]
+    d3 = noise_floor(meas, np.mean(noisy, axis=0), noisy)
+    resid = np.sqrt(np.mean((meas - np.mean(noisy, axis=0)) ** 2))
+    assert d3["replays_rms"] > 2.0 * resid
+    assert d3["rms"] <= 1.05 * resid

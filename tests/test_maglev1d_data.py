@@ -116,3 +116,16 @@ def test_sha256(tmp_path):
     p = tmp_path / "x"
     p.write_bytes(b"abc")
     assert sha256_of(p) == "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+
+
+def test_time_written_to_a_tenth_of_a_millisecond_is_uniform():
+    """The acquisition program writes an accumulated t += Ts with four decimals: steps of 0.0099
+    and 0.0101 s are the same period; a dropped sample is not."""
+    a = {c: np.full(2000, 0.005) for c in COLUMNS}
+    t = np.cumsum(np.full(2000, np.float32(0.01)), dtype=np.float32).astype(float)
+    a["t"] = np.round(t, 4)
+    assert np.any(np.abs(np.diff(a["t"]) - 0.01) > 1e-5)
+    validate_arrays(a, "f.csv", 0.01)
+    a["t"] = np.r_[a["t"][:200], a["t"][201:], a["t"][-1] + 0.01]
+    with pytest.raises(DataError, match="sample 200 is 0.02"):
+        validate_arrays(a, "f.csv", 0.01)

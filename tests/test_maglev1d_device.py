@@ -170,3 +170,25 @@ def test_checks_published_against_start():
     assert st["linearised_loop"]["model_stable"]
     assert st["command_per_current"]["measured_ohm"] == pytest.approx(st["command_per_current"]["model_ohm"], rel=1e-6)
     assert abs(st["equilibrium_current"]["measured_a"] / st["equilibrium_current"]["model_a"] - 1) < 0.03
+
+
+def test_checks_read_the_current_at_rest_and_the_ball_at_the_face():
+    """The current read after 0.2 s of zero command is the sensor's zero (the shipped logs read
+    7-12 counts, 15-25 mA); a ball held at the face reads the ADC's 0; every check has a summary."""
+    from ssamb.maglev1d import checks as K
+
+    n = 200
+    a = {"t": np.arange(n) * 0.01, "y": np.full(n, 0.0), "i": np.full(n, 0.3), "u": np.full(n, 3.0),
+         "yd": np.full(n, 0.005)}
+    a["u"][50:120] = 0.0
+    a["i"][50:120] = 8 * 5 / 2.2 / 1023
+    r = K.current_at_rest(a, CFG)
+    assert r["samples"] == 120 - 50 - 19 and r["current_a"] == pytest.approx(8 * 5 / 2.2 / 1023)
+    f = K.face_reading(a, CFG)
+    assert f["samples"] > 0 and f["reading_m"] == 0.0 and f["clipped"]
+    for name in DATA:
+        arrays, _ = DEV.load(DATA[name])
+        for key, c in DEV.checks(arrays, CFG).items():
+            assert isinstance(c["summary"], str) and c["summary"], (name, key)
+        r = K.current_at_rest(arrays, CFG)
+        assert 0.010 < r["current_a"] < 0.030, name

@@ -152,3 +152,32 @@ def test_simulation_holds_a_ball_at_equilibrium_and_is_deterministic():
     assert np.max(np.abs(a["y"] - 0.005)) < 10 * 0.05 / 1023
     for c in ("y", "i", "u"):
         np.testing.assert_array_equal(a[c], b[c])
+
+
+def test_sensor_curvature_reading_and_its_inverse():
+    """reading = l + q (l - c)^2 with l = g y + o: neutral at q = 0, unchanged at the centre, the
+    inverse recovers y on the monotonic branch, and the local scale is the derivative."""
+    y = np.linspace(0.0, 0.018, 37)
+    p0 = _knobs(sensor_gain=0.8, sensor_offset_m=0.001)
+    np.testing.assert_allclose(P.reading_m(p0, y), 0.8 * y + 0.001 * 1 + CFG["sensors"]["position_offset_m"])
+    p = _knobs(sensor_gain=0.8, sensor_offset_m=0.001, sensor_curvature_per_m=25.0)
+    r = P.reading_m(p, y)
+    np.testing.assert_allclose(P.position_m(p, r), y, atol=1e-12)
+    yc = (p[P.knob_index("sensor_centre_m")] - 0.001) / 0.8
+    assert float(P.reading_m(p, yc)) == pytest.approx(float(P.reading_m(p0, yc)), abs=1e-15)
+    h = 1e-7
+    num = (P.reading_m(p, y + h) - P.reading_m(p, y - h)) / (2 * h)
+    np.testing.assert_allclose(P.reading_slope(p, y), num, rtol=1e-6)
+    assert np.all(np.diff(r) > 0)
+
+
+def test_curved_sensor_in_the_kernel_reads_the_same_function():
+    """A ball held at rest reads the curved sensor's value (no noise, a fine ADC)."""
+    p = _knobs(sensor_curvature_per_m=40.0)
+    p[P.knob_index("position_lsb_m")] = 1e-9
+    p[P.knob_index("position_counts")] = 1e9
+    y0, i0, u0 = P.equilibrium(p, 0.0065)
+    init = np.array([[y0, 0.0, i0, 0.0, -i0, u0, u0]])
+    out = P.simulate(p, gains_of(CFG), np.full(3, 0.0065), [(0, 3)], init, None)
+    assert out["y"][0] == pytest.approx(0.0065, abs=2e-9)
+    assert float(P.reading_m(p, y0)) == pytest.approx(0.0065, abs=1e-12)

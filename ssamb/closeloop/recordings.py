@@ -16,9 +16,11 @@ own (:func:`ssamb.closeloop.analyse`: calibration, effects, joint refit, with it
 3. **held-out recordings**: the published-parameter (nominal) model and the combined model are
    replayed on every held-out recording (the mean of ``replay_seeds`` replays). Per channel, the
    rms error over the analysed part of the usable stretch, and the channel's noise floor: the rms
-   spread of single replays about their mean, times :math:`\sqrt{1 + 1/m}` (the recording is one
-   more realisation of the loop's noise, the prediction the mean of :math:`m`). A channel is
-   above its floor when the nominal model's error exceeds twice it;
+   spread of the final model's single replays about their mean, times :math:`\sqrt{1 + 1/m}` (the
+   recording is one more realisation of the loop's noise, the prediction the mean of :math:`m`),
+   bounded in every frequency band by the measured residual (:func:`noise_floor`: a model noisier
+   than the rig does not raise the floor). A channel is above its floor when the nominal model's
+   error exceeds twice it;
 4. **held-out test of each effect**: the combined model with and without it, on the whitened
    features of each held-out recording's two parts (:func:`ssamb.closeloop.fit.holdout_score`'s
    statistic :math:`z`), combined over the :math:`K` parts as :math:`\sum z_k/\sqrt K`; an
@@ -63,7 +65,7 @@ def combine_estimates(values, ses, max_z: float = 3.0) -> dict:
     zmax = 0.0
     for a in range(k):
         for b in range(a + 1, k):
-            zmax = max(zmax, abs(v[a] - v[b]) / math.hypot(s[a], s[b]))
+            zmax = max(zmax, float(abs(v[a] - v[b]) / math.hypot(s[a], s[b])))
     return {"value": m, "se": se * max(1.0, birge), "birge": birge, "max_pair_z": zmax,
             "agree": bool(zmax <= max_z), "n": k}
 
@@ -140,18 +142,82 @@ def _analysed_range(rec, settings) -> slice:
     return slice(max(a, int(math.ceil(settings.discard_s * rec.fs_hz))), b)
 
 
-def _channel_errors(dev, rec, sl: slice, nominal: dict, final: dict, runs: list) -> dict:
-    """Per channel: rms error of both models over ``sl``, the noise floor (module docstring) and
-    whether the nominal model's error stands above it."""
+def _band_powers(x: np.ndarray, nper: int, n_bands: int) -> np.ndarray:
+    """Welch power of ``x`` (rows: realisations, averaged) summed in ``n_bands`` logarithmically spaced
+    bands of the one-sided spectrum above DC (the lowest band starts at the first bin)."""
+    from scipy import signal
+
+    _, P = signal.welch(np.atleast_2d(x), nperseg=nper, detrend="constant", axis=-1)
+    P = np.mean(P, axis=0)[1:]
+    edges = np.unique(np.round(np.geomspace(1, len(P) + 1, n_bands + 1)).astype(int)) - 1
+    return np.array([P[a:b].sum() for a, b in zip(edges[:-1], edges[1:])])
+
+
+def noise_floor(meas: np.ndarray, final: np.ndarray, runs: list, n_bands: int = 8) -> dict:
+    r"""The noise floor of one channel's held-out error (module docstring, step 3).
+
+    The replays of the final model are realisations of its noise; their spread about their mean,
+    :math:`\sigma_r` per sample, times :math:`\sqrt{1 + 1/m}`, is the rms error a model that is
+    right would leave (the recording one more realisation). That holds only where the model's
+    noise *is* the rig's: a model whose loop is less damped than the rig's, or whose replays
+    diverge, spreads more than the rig's noise does, and its spread would hide its own failure.
+    The data bound it: the measured residual about the final model's prediction holds the rig's
+    noise plus any misfit, so in no frequency band can the rig's noise exceed it. Per band
+    :math:`b` (Welch, logarithmically spaced) with the replays' spread power :math:`S_b` (about
+    their mean, times :math:`m/(m-1)` and :math:`1 + 1/m`) and the residual's :math:`R_b`:
+
+    .. math:: \text{floor}^2 = \sigma_r^2 (1 + 1/m) \frac{\sum_b \min(S_b, R_b)}{\sum_b S_b}
+
+    Returns
+    -------
+    dict
+        ``rms`` (the floor), ``replays_rms`` (the spread alone, :math:`\sigma_r\sqrt{1+1/m}`) and
+        ``capped_bands`` (the bands' upper frequencies as fractions of Nyquist where the spread
+        exceeds the residual).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> runs = [rng.standard_normal(4096) for _ in range(8)]
+    >>> d = noise_floor(rng.standard_normal(4096), np.mean(runs, axis=0), runs)
+    >>> 0.9 < d["rms"] / d["replays_rms"] <= 1.0
+    True
+    >>> d = noise_floor(0.1 * rng.standard_normal(4096), np.zeros(4096), runs)
+    >>> round(d["rms"], 1)
+    0.1
+    """
     m = len(runs)
+    y = np.asarray(meas, float)
+    if m < 2:
+        return {"rms": 0.0, "replays_rms": 0.0, "capped_bands": []}
+    R = np.asarray(runs, float)
+    mean = R.mean(axis=0)
+    spread = float(np.sqrt(np.mean(np.var(R, axis=0, ddof=1))) * math.sqrt(1.0 + 1.0 / m))
+    n = y.size
+    nper = int(min(256, 2 ** int(math.floor(math.log2(max(n // 4, 16))))))
+    if n < 2 * nper or spread == 0.0:
+        return {"rms": spread, "replays_rms": spread, "capped_bands": []}
+    S = _band_powers(R - mean, nper, n_bands) * (m / (m - 1.0)) * (1.0 + 1.0 / m)
+    Rb = _band_powers(y - np.asarray(final, float), nper, n_bands)
+    keep = np.minimum(S, Rb)
+    frac = float(keep.sum() / S.sum()) if S.sum() > 0 else 1.0
+    edges = np.unique(np.round(np.geomspace(1, nper // 2 + 1, n_bands + 1)).astype(int))
+    capped = [float(edges[j + 1] / (nper // 2 + 1)) for j in range(len(S)) if Rb[j] < S[j]]
+    return {"rms": spread * math.sqrt(frac), "replays_rms": spread, "capped_bands": capped}
+
+
+def _channel_errors(dev, rec, sl: slice, nominal: dict, final: dict, runs: list) -> dict:
+    """Per channel: rms error of both models over ``sl``, the noise floor (:func:`noise_floor`) and
+    whether the nominal model's error stands above twice it."""
     out = {}
     for c in dev.channels:
         y = rec.channels[c][sl]
-        spread = np.std([r[c][sl] for r in runs], axis=0, ddof=1) if m > 1 else np.zeros_like(y)
-        floor = float(np.sqrt(np.mean(spread ** 2)) * math.sqrt(1.0 + 1.0 / max(m, 1)))
+        fl = noise_floor(y, final[c][sl], [r[c][sl] for r in runs])
+        floor = fl["rms"]
         before = float(np.sqrt(np.mean((y - nominal[c][sl]) ** 2)))
         after = float(np.sqrt(np.mean((y - final[c][sl]) ** 2)))
         out[c] = {"rms_before": before, "rms_after": after, "noise_rms": floor,
+                  "noise_rms_replays": fl["replays_rms"],
                   "above_noise": bool(before > 2 * floor), "ratio": after / before if before > 0 else float("nan"),
                   "samples": int(y.size)}
     return out

@@ -26,6 +26,13 @@ parameters predict:
   :math:`k_0 = \tau R - k/(1 + \bar y/a)`, and the position sensor's scale and zero from the
   plateaus' line :math:`i = s (y + A)`: :math:`g_s = \sqrt{2 m g/(k a)}/s`, :math:`o_s = a g_s - A`
   (with one level, :math:`g_s = 1`). A start for the calibration, never its result.
+* :func:`current_at_rest` -- the current reading with the stage off: after ``rest_s`` of zero
+  command the coil's current has decayed (:math:`e^{-20}` at its 10-20 ms time constant), so the
+  reading is the current sensor's zero; the model reads 0.
+* :func:`face_reading` -- the position reading with the ball held at the magnet's face (readings
+  within 15 counts of zero, steady to a count, with current in the coil): the sensor's reading of
+  :math:`y = 0`, which the model puts at its zero :math:`o_s`. A reading clipped at the ADC's 0
+  only bounds it from above.
 * :func:`loop_poles` -- the linearised sampled loop (plant discretised exactly over a sample
   with the voltage held, the controller as it runs) at an operating point: its poles, and
   whether all lie inside the unit circle, and the least damped oscillation (damping ratio and
@@ -41,7 +48,8 @@ import scipy.linalg as sla
 from . import controller as _ctl
 from .physics import equilibrium_current_a, inductance_h
 
-__all__ = ["coil_time_constant", "equilibrium_currents", "noise_levels", "loop_poles", "start_estimate"]
+__all__ = ["coil_time_constant", "equilibrium_currents", "noise_levels", "loop_poles", "start_estimate",
+           "current_at_rest", "face_reading"]
 
 
 def _levitated_steady(arrays: Mapping, cfg: Mapping, y_max_m: float = 0.012) -> np.ndarray:
@@ -192,3 +200,28 @@ def start_estimate(arrays: Mapping, cfg: Mapping) -> dict:
         else:
             out["sensors.position_offset_m"] = float(np.mean(mg_["a_m"] + ym - im / c0))
     return {k: float(v) for k, v in out.items()}
+
+
+def current_at_rest(arrays: Mapping, cfg: Mapping, rest_s: float = 0.2) -> dict:
+    """The current reading after ``rest_s`` of zero command (module docstring): median and count."""
+    i, u = np.asarray(arrays["i"], float), np.asarray(arrays["u"], float)
+    n = int(round(rest_s / cfg["controller"]["ts_s"]))
+    off = u <= 0.0
+    run = np.zeros(len(u), int)
+    for k in range(1, len(u)):
+        run[k] = run[k - 1] + 1 if off[k] else 0
+    sel = run >= n
+    return {"samples": int(sel.sum()), "current_a": float(np.median(i[sel])) if sel.any() else None}
+
+
+def face_reading(arrays: Mapping, cfg: Mapping, max_counts: int = 15, hold: int = 5) -> dict:
+    """The position reading with the ball held at the magnet's face (module docstring)."""
+    y, i = np.asarray(arrays["y"], float), np.asarray(arrays["i"], float)
+    qy = _ctl.position_lsb_m(cfg)
+    c = np.round(y / qy)
+    k = np.arange(hold, len(y) - hold)
+    win = np.lib.stride_tricks.sliding_window_view(c, 2 * hold)[: len(k)]
+    sel = k[(c[k] <= max_counts) & (np.ptp(win, axis=1) <= 1) & (i[k] > cfg["levitation"]["min_current_a"] / 2)]
+    return {"samples": int(len(sel)), "reading_m": float(np.median(y[sel])) if len(sel) else None,
+            "clipped": bool(len(sel) and np.median(c[sel]) <= 0)}
+

@@ -26,6 +26,7 @@ __all__ = ["default_config", "load_config", "validate", "get"]
 _RANGES = {
     "stops.top_m": (0.0, 0.05, True),
     "sensors.position_offset_m": (-0.01, 0.01, True),
+    "sensors.position_curvature_per_m": (-30.0, 90.0, True),
     "amplifier.drop_v": (0.0, 10.0, True),
     "stops.restitution": (0.0, 1.0, True),
     "noise.position_m": (0.0, 1e-3, True),

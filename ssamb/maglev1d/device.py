@@ -95,42 +95,71 @@ class Maglev1D(Device):
         return out
 
     def checks(self, arrays: Mapping, cfg: Mapping) -> dict:
-        """Physical checks of the model with ``cfg`` against one recording (:mod:`.checks`): the
-        coil's time constant, the command's incremental resistance and offset (from the current's
-        response to the command), the equilibrium current on settled plateaus against the force
-        law, and the linearised loop at the reference's levels (the rig levitates there)."""
+        """Physical checks of the model with ``cfg`` against one recording (:mod:`.checks`), each with a
+        one-line ``summary``: the coil's time constant, the command's incremental resistance and
+        offset (the current's response to the command), the equilibrium current on settled plateaus
+        against the force law, the linearised loop at the reference's levels (the rig levitates
+        there), the current reading with the stage off, the position reading of the ball held at
+        the magnet's face, and whether the logged command follows from the logged signals."""
         from . import checks as _chk
 
         from .physics import equilibrium_current_a, inductance_h
 
         c = _chk.coil_time_constant(arrays, cfg)
-        gs, o = cfg["sensors"]["position_gain"], cfg["sensors"]["position_offset_m"]
+        p = _phys.knobs_of(cfg)
         b, mg = cfg["ball"], cfg["magnet"]
-        tau_model = float(inductance_h((c["y_mean_m"] - o) / gs, mg["k0_h"], mg["k_h"], mg["a_m"])) / (
-            cfg["coil"]["r_ohm"] + cfg["coil"]["r_shunt_ohm"])
+        r_tot = cfg["coil"]["r_ohm"] + cfg["coil"]["r_shunt_ohm"]
+        tau_model = float(inductance_h(_phys.position_m(p, c["y_mean_m"]), mg["k0_h"], mg["k_h"], mg["a_m"])) / r_tot
+        gain = cfg["amplifier"]["v_max_v"] / cfg["controller"]["v_ref_v"]
         out = {"coil_time_constant": {"measured_s": c["tau_s"], "model_s": tau_model, "samples": c["samples"],
-                                      "y_mean_m": c["y_mean_m"]},
-               "command_per_current": {"measured_ohm": c["r_over_gain_ohm"],
-                                       "model_ohm": (cfg["coil"]["r_ohm"] + cfg["coil"]["r_shunt_ohm"])
-                                       * cfg["controller"]["v_ref_v"] / cfg["amplifier"]["v_max_v"]},
+                                      "y_mean_m": c["y_mean_m"],
+                                      "summary": f"L/R {1e3 * c['tau_s']:.1f} ms from the current's response to the "
+                                                 f"command, model {1e3 * tau_model:.1f} ms"},
+               "command_per_current": {"measured_ohm": c["r_over_gain_ohm"], "model_ohm": r_tot / gain,
+                                       "summary": f"command per ampere {c['r_over_gain_ohm']:.2f} ohm, model "
+                                                  f"{r_tot / gain:.2f} ohm (R V_ref/V_max)"},
                "command_offset": {"measured_v": c["offset_v"],
-                                  "model_v": cfg["amplifier"]["drop_v"] * cfg["controller"]["v_ref_v"]
-                                  / cfg["amplifier"]["v_max_v"]}}
+                                  "model_v": cfg["amplifier"]["drop_v"] / gain,
+                                  "summary": f"command at zero current {c['offset_v']:.2f} V, model "
+                                             f"{cfg['amplifier']['drop_v'] / gain:.2f} V (the stage's drop)"}}
         e = _chk.equilibrium_currents(arrays, cfg)
         if e["plateaus"]:
-            ym = (np.array(e["y_m"]) - o) / gs
+            ym = _phys.position_m(p, np.array(e["y_m"]))
             pred = equilibrium_current_a(ym, b["mass_kg"], b["gravity_m_per_s2"], mg["k_h"], mg["a_m"])
+            ratio = np.array(e["i_a"]) / pred
             out["equilibrium_current"] = {"plateaus": e["plateaus"], "measured_a": float(np.mean(e["i_a"])),
                                           "model_a": float(np.mean(pred)),
-                                          "ratio_min": float(np.min(np.array(e["i_a"]) / pred)),
-                                          "ratio_max": float(np.max(np.array(e["i_a"]) / pred))}
+                                          "ratio_min": float(np.min(ratio)), "ratio_max": float(np.max(ratio)),
+                                          "summary": f"{e['plateaus']} settled plateaus: measured current "
+                                                     f"{np.min(ratio):.3f}-{np.max(ratio):.3f} times the force law's"}
         levels = np.unique(np.round(np.asarray(arrays["yd"], float), 5))
         levels = levels if len(levels) <= 5 else np.quantile(np.asarray(arrays["yd"], float), [0.1, 0.5, 0.9])
         st = self.stable_at(cfg, levels)
+        stable = all(r["stable"] for r in st.values())
         out["linearised_loop"] = {"levels_m": [float(v) for v in st],
                                   "spectral_radius": [r["spectral_radius"] for r in st.values()],
                                   "least_damping": [r["least_damping"] for r in st.values()],
-                                  "model_stable": all(r["stable"] for r in st.values()), "rig_levitates": True}
+                                  "model_stable": stable, "rig_levitates": True,
+                                  "summary": f"the rig levitates at {', '.join(f'{1e3 * v:.2f}' for v in st)} mm; the "
+                                             f"model's linearised loop is {'stable' if stable else 'UNSTABLE'} there "
+                                             f"(spectral radius {max(r['spectral_radius'] for r in st.values()):.3f})"}
+        r = _chk.current_at_rest(arrays, cfg)
+        if r["samples"]:
+            model_i = float(self.knobs(cfg, [])["current_offset_a"])
+            out["current_at_rest"] = {**r, "model_a": model_i,
+                                      "summary": f"current reading after 0.2 s of zero command {1e3 * r['current_a']:.1f} mA "
+                                                 f"({r['samples']} samples), model {1e3 * model_i:.1f} mA"}
+        f = _chk.face_reading(arrays, cfg)
+        if f["samples"]:
+            model_r = float(_phys.reading_m(p, 0.0))
+            out["face_reading"] = {**f, "model_m": model_r,
+                                   "summary": f"ball held at the magnet's face reads {1e3 * f['reading_m']:.2f} mm"
+                                              f"{' (the ADC clips at 0)' if f['clipped'] else ''} ({f['samples']} samples), "
+                                              f"model {1e3 * model_r:.2f} mm"}
+        k = _ctl.check(arrays, cfg)
+        out["controller"] = {**k, "summary": f"the logged command follows from the logged signals through the rig's "
+                                             f"controller in {100 * k['within_rounding']:.0f} % of samples within the "
+                                             f"log's rounding, {100 * k['within_pwm_step']:.0f} % within one PWM step"}
         return out
 
     # -- data
@@ -271,15 +300,14 @@ class Maglev1D(Device):
         u = record.channels["u"]
         ts = 1.0 / record.fs_hz
         states = record.meta["controller_states"]
+        p = _phys.knobs_of(cfg, kn)
         out = np.zeros((len(segments), 7))
         for j, (a, b) in enumerate(segments):
             lo, hi = max(a - 3, 0), min(a + 4, len(y))
             tt = (np.arange(lo, hi) - a) * ts
             c = np.polyfit(tt, y[lo:hi], 2) if hi - lo >= 3 else np.array([0.0, 0.0, y[a]])
-            g = kn["sensor_gain"] * cfg["sensors"]["position_gain"]
-            o = kn["sensor_offset_m"] + cfg["sensors"]["position_offset_m"]
-            y0 = (y[a] - o) / g                 # the sensor model's inverse: reading = g y + o
-            v0 = c[1] / g
+            y0 = float(_phys.position_m(p, y[a]))      # the sensor model's inverse
+            v0 = c[1] / float(_phys.reading_slope(p, y0))
             i0 = max(i[a] - kn["current_offset_a"], 0.0)
             out[j] = [y0, v0, i0, states[a, 0], states[a, 1], states[a, 2], u[a - 1] if a > 0 else 0.0]
         return out
@@ -332,10 +360,13 @@ class Maglev1D(Device):
         from .checks import loop_poles
 
         kn = self.knobs(cfg, effects or [])
-        gs = kn["sensor_gain"] * cfg["sensors"]["position_gain"]
-        o = kn["sensor_offset_m"] + cfg["sensors"]["position_offset_m"]
-        return {float(lv): loop_poles(cfg, (float(lv) - o) / gs, {"sensor_gain": gs, "extra_force_n": kn["extra_force_n"]})
-                for lv in levels_m}
+        p = _phys.knobs_of(cfg, kn)
+        out = {}
+        for lv in levels_m:
+            y0 = float(_phys.position_m(p, float(lv)))
+            out[float(lv)] = loop_poles(cfg, y0, {"sensor_gain": float(_phys.reading_slope(p, y0)),
+                                                  "extra_force_n": kn["extra_force_n"]})
+        return out
 
     def measured_contact(self, record: Record, cfg: Mapping, settings) -> bool:
         """Whether the measured ball comes within a count of a stop in the usable part."""

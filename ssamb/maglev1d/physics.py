@@ -47,7 +47,10 @@ the force changes sign -- sticking and lift-off follow from the force law, no ex
 
 Sensors: the position ADC count is :math:`\operatorname{round}(y_s / q_y)` clipped to
 :math:`[0, N_y]` (:math:`q_y` = 0.05/1023 m), of the sensor's reading
-:math:`y_s = g_s y + o_s + n_y` (scale and zero ``sensors.position_gain``/``position_offset_m``); the
+:math:`y_s = \ell + q (\ell - c)^2 + n_y`, :math:`\ell = g_s y + o_s` (scale and zero
+``sensors.position_gain``/``position_offset_m``; an optical sensor's curvature :math:`q`
+``sensors.position_curvature_per_m`` about the reading :math:`c` = ``sensors.position_centre_m``,
+zero in the published linear sensor, leaves the scale and the reading at :math:`c` as they are); the
 current ADC count likewise of :math:`i + n_i` (:math:`q_i = 5/(2.2\cdot 1023)` A). The noise terms
 are white, Gaussian, one draw per sample, their levels in the config (``noise``): a replay is a
 realisation of this noise (with quantisation, which is deterministic given the state). A random
@@ -67,7 +70,7 @@ import numpy as np
 from .controller import step as controller_step
 
 __all__ = ["KNOBS", "knob_index", "neutral_knobs", "inductance_h", "force_n", "equilibrium_current_a",
-           "equilibrium", "simulate", "knobs_of"]
+           "equilibrium", "simulate", "knobs_of", "reading_m", "position_m", "reading_slope"]
 
 #: the kernel's parameter vector: physical parameters, noise levels, effect knobs (neutral values
 #: in :func:`neutral_knobs`); effects set theirs through :mod:`ssamb.maglev1d.effects`
@@ -81,10 +84,11 @@ KNOBS = (
     # effects
     "sensor_delay_s", "actuation_delay_s", "sensor_gain", "sensor_offset_m", "extra_force_n", "eddy_tau_s",
     "saturation_per_a2", "drop_v", "r_rate_ohm_per_s", "current_offset_a", "remanence_a",
+    "sensor_curvature_per_m", "sensor_centre_m",
 )
 _I = {n: j for j, n in enumerate(KNOBS)}
 (M, G, K0, K, A, R, VMAX, VREF, NPWM, QY, NY, QI, NI, YTOP, YBOT, REST, NSUB, SY, SI, SF, DY, DU, GY, OY,
- FEXT, TAUE, CSAT, VDROP, RRATE, IOFF, IREM) = range(len(KNOBS))
+ FEXT, TAUE, CSAT, VDROP, RRATE, IOFF, IREM, QS, RC) = range(len(KNOBS))
 
 
 def knob_index(name: str) -> int:
@@ -95,7 +99,8 @@ def neutral_knobs() -> dict:
     """Effect knobs at 'no effect'."""
     return {"sensor_delay_s": 0.0, "actuation_delay_s": 0.0, "sensor_gain": 1.0, "sensor_offset_m": 0.0,
             "extra_force_n": 0.0, "eddy_tau_s": 0.0, "saturation_per_a2": 0.0, "drop_v": 0.0,
-            "r_rate_ohm_per_s": 0.0, "current_offset_a": 0.0, "remanence_a": 0.0}
+            "r_rate_ohm_per_s": 0.0, "current_offset_a": 0.0, "remanence_a": 0.0, "sensor_curvature_per_m": 0.0,
+            "sensor_centre_m": 0.005}
 
 
 # -- the force law ----------------------------------------------------------------------------
@@ -115,12 +120,42 @@ def equilibrium_current_a(y, mass_kg, g, k_h, a_m, extra_force_n=0.0):
     return (1.0 + np.asarray(y, float) / a_m) * np.sqrt(2.0 * a_m * (mass_kg * g + extra_force_n) / k_h)
 
 
+@numba.njit(cache=True)
+def _reading(p, y):
+    """The position sensor's noise-free reading of the true position ``y`` (module docstring)."""
+    lin = p[GY] * y + p[OY]
+    z = lin - p[RC]
+    return lin + p[QS] * z * z
+
+
+def reading_m(p: np.ndarray, y):
+    r"""The position sensor's reading :math:`y_s = \ell + q (\ell - c)^2`, :math:`\ell = g_s y + o_s`,
+    of the true position ``y`` (m), noise and ADC aside."""
+    lin = p[GY] * np.asarray(y, float) + p[OY]
+    return lin + p[QS] * (lin - p[RC]) ** 2
+
+
+def position_m(p: np.ndarray, reading):
+    r"""The true position whose noise-free reading is ``reading`` (the inverse of :func:`reading_m` on
+    its monotonic branch: :math:`\ell - c = 2 (y_s - c)/(1 + \sqrt{1 + 4 q (y_s - c)})`)."""
+    d = np.asarray(reading, float) - p[RC]
+    disc = np.maximum(1.0 + 4.0 * p[QS] * d, 1e-12)
+    lin = p[RC] + 2.0 * d / (1.0 + np.sqrt(disc))
+    return (lin - p[OY]) / p[GY]
+
+
+def reading_slope(p: np.ndarray, y):
+    r""":math:`dy_s/dy = g_s (1 + 2 q (\ell - c))`: the sensor's local scale at the true position ``y``."""
+    lin = p[GY] * np.asarray(y, float) + p[OY]
+    return p[GY] * (1.0 + 2.0 * p[QS] * (lin - p[RC]))
+
+
 def equilibrium(p: np.ndarray, reading_m: float) -> tuple[float, float, float]:
     r"""The ball at rest where the sensor reads ``reading_m``: true position (the sensor model's
     inverse), the terminal current that holds it (force law with saturation and the extra force:
     :math:`i^2/(1 + c i^2) = i_{law}^2`), and the command that drives it
     (:math:`u = V_{ref} (R i + V_d)/V_{max}`, the PWM's truncation aside)."""
-    y = (reading_m - p[OY]) / p[GY]
+    y = float(position_m(p, reading_m))
     i_law = float(equilibrium_current_a(y, p[M], p[G], p[K], p[A], p[FEXT]))
     den = 1.0 - p[CSAT] * i_law ** 2
     i = (i_law / math.sqrt(den) if den > 0 else i_law) - p[IREM]
@@ -275,7 +310,7 @@ def _simulate(p, g, yd, t0_s, seg_a, seg_b, init, ny, ni, nf, out_y, out_i, out_
                     yq = hist_y[0]
                 else:
                     yq = _hermite(hist_t[j - 1], hist_y[j - 1], hist_v[j - 1], hist_t[j], hist_y[j], hist_v[j], tq)
-            reading = p[GY] * yq + p[OY] + p[SY] * ny[k]
+            reading = _reading(p, yq) + p[SY] * ny[k]
             ym = _adc(reading, p[QY], p[NY])
             it = _terminal(p, st[0], st[2], v_prev, r)
             im_meas = _adc(it + p[IOFF] + p[SI] * ni[k], p[QI], p[NI])
@@ -387,5 +422,7 @@ def knobs_of(cfg, knobs: dict | None = None) -> np.ndarray:
     v.update(knobs or {})
     v["sensor_gain"] *= c["sensors"]["position_gain"]          # the sensor's nominal scale and zero,
     v["sensor_offset_m"] += c["sensors"]["position_offset_m"]  # then an effect's on top
+    v["sensor_curvature_per_m"] += c["sensors"]["position_curvature_per_m"]
+    v["sensor_centre_m"] = c["sensors"]["position_centre_m"]
     v["drop_v"] += c["amplifier"]["drop_v"]
     return np.array([float(v[n]) for n in KNOBS])
