@@ -28,6 +28,7 @@ import functools
 import hashlib
 import io
 import json
+import logging
 import os
 import shutil
 import subprocess
@@ -1279,6 +1280,11 @@ def _run_cli(case: Case, folder: Path, subprocess_cli: bool) -> Outcome:
         status, err = r.returncode, r.stderr
     else:
         out, err_io = io.StringIO(), io.StringIO()
+        # warnings logged during the command reach its stderr, as they do at the command line
+        # (under pytest the root logger has handlers of its own, and the last resort is unused)
+        handler = logging.StreamHandler(err_io)
+        handler.setLevel(logging.WARNING)
+        logging.getLogger().addHandler(handler)
         try:
             with redirect_stderr(err_io), redirect_stdout(out):
                 status = main(argv)
@@ -1286,6 +1292,8 @@ def _run_cli(case: Case, folder: Path, subprocess_cli: bool) -> Outcome:
             status = exc.code if isinstance(exc.code, int) else 1
         except Exception:  # a traceback at the command line
             return Outcome(case, "traceback", traceback.format_exc()[-2000:])
+        finally:
+            logging.getLogger().removeHandler(handler)
         err = err_io.getvalue()
     verdict, detail = _verdict(case, status, err, before, _snapshot(folder))
     return Outcome(case, verdict, detail)

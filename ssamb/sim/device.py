@@ -227,8 +227,12 @@ class AMB(Device):
         ...): :func:`ssamb.plausibility.measured_notes`."""
         import logging
 
-        from ..plausibility import measured_notes
+        from ..plausibility import check_measured, measured_notes
 
+        try:
+            check_measured(arrays, cfg, "data", meta)
+        except DataError:
+            return []                  # refused by record(), which names the file: no note first
         notes = measured_notes(arrays, meta, cfg)
         for note in notes:             # on stderr (a job's log) at once: before anything is fitted
             logging.getLogger("ssamb.plausibility").warning("note: %s", note)
