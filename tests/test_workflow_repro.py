@@ -9,7 +9,7 @@ import sys
 
 import pytest
 import yaml
-from conftest import SMOKE_ARGS, copy_repo, run_snakemake, smoke_run
+from conftest import SMOKE_ARGS, copy_repo, run_snakemake
 
 pytestmark = pytest.mark.workflow
 
@@ -52,9 +52,9 @@ def _checksums(results) -> dict:
 
 
 @pytest.mark.slow
-def test_two_clean_runs_give_byte_identical_results(smoke_workdir, tmp_path_factory):
+def test_two_clean_runs_give_byte_identical_results(smoke_workdir, smoke_second_workdir):
     first = _checksums(smoke_workdir / "results")
-    second = _checksums(smoke_run(tmp_path_factory.mktemp("smoke_again")) / "results")
+    second = _checksums(smoke_second_workdir / "results")
     assert first.keys() == second.keys()
     assert len(first) > 40
     differ = sorted(k for k in first if first[k] != second[k])
