@@ -87,12 +87,12 @@ def test_settings_unknown_key():
 
 def test_split_on_whole_periods():
     n_p = 16660
-    rec = Record(device=None, fs_hz=FS, channels={"x_meas": np.zeros(6 * n_p)}, inputs={}, excitation={}, excited_axes=("y",),
-                 signal={}, n_period=n_p, lines_hz=None, start="levitated", settle_s=None)
+    rec = Record(device=None, fs_hz=FS, channels={"x_meas": np.zeros(6 * n_p)}, inputs={}, excitation={},
+                 excited_axes=("y",), signal={}, n_period=n_p, lines_hz=None, start="levitated", settle_s=None)
     sp = make_split(rec, 0.7, 0.1, 0.1, 0.05)
     assert (sp.i0, sp.i_fit, sp.i_end) == (n_p, 4 * n_p, 6 * n_p)   # 1 discarded, 3 fitted, 2 held out
-    rec2 = Record(device=None, fs_hz=FS, channels={"x_meas": np.zeros(int(0.5 * FS))}, inputs={}, excitation={}, excited_axes=(),
-                  signal={}, n_period=None, lines_hz=None, start="levitated", settle_s=None)
+    rec2 = Record(device=None, fs_hz=FS, channels={"x_meas": np.zeros(int(0.5 * FS))}, inputs={}, excitation={},
+                  excited_axes=(), signal={}, n_period=None, lines_hz=None, start="levitated", settle_s=None)
     sp2 = make_split(rec2, 0.7, 0.1, 0.1, 0.05)
     assert abs(sp2.fit_fraction - 0.7) < 1e-3 and sp2.i0 == math.ceil(0.1 * FS)
 
@@ -139,7 +139,10 @@ def test_ratio_fit_recovers_gain_and_delay():
     Hh_s = 1.0 / (1 + 1j * f / 30.0)
     Hh_a = np.ones_like(Hh_s) * 0.5
     var = 1e-8 * np.ones_like(f)
-    noise = lambda: np.sqrt(var / 2) * (rng.standard_normal(len(f)) + 1j * rng.standard_normal(len(f)))
+
+    def noise():
+        return np.sqrt(var / 2) * (rng.standard_normal(len(f)) + 1j * rng.standard_normal(len(f)))
+
     Hm_s = 1.05 * np.exp(-1j * w * 2.0e-5) * Hh_s + noise()
     Hm_a = Hh_a + noise()
     r = _ratio_fit(f, Hm_s, Hm_a, Hh_s, Hh_a, var, var)
@@ -198,7 +201,7 @@ def test_closeloop_json_binding_format(written):
             assert set(rep[part][c]) >= {"rms", "fit_pct"}
     assert 0.5 < rep["validation"]["fit_fraction"] < 0.9
     assert "wall" not in (written / "closeloop.json").read_text()      # no wall-clock time: byte-reproducible
-    for key, p in rep["parameters"].items():                            # ARCHITECTURE.md, calibrated parameters
+    for key, p in rep["parameters"].items():                            # the format's calibrated parameters
         assert set(p) >= {"value", "se", "nominal", "relative_change", "identifiable"} and p["identifiable"] is True
     assert all(isinstance(v, str) and v for v in rep["not_identifiable"].values())
     assert set(rep["parameters"]) | set(rep["not_identifiable"]) == set(LIGHT["calibration"])
@@ -234,7 +237,7 @@ def test_config_closeloop_section_is_valid():
 @pytest.mark.slow
 def test_report_section_on_a_real_analysis(written):
     from ssamb.report.context import Context
-    from ssamb.report.elements import Image, Table
+    from ssamb.report.elements import Image
     from ssamb.report.sections import closeloop
 
     sec = closeloop(Context(Path(written), {}, {}, Path("config.yaml"), Path(written)))

@@ -1,4 +1,4 @@
-"""Assemble ``closeloop.json`` (ARCHITECTURE.md, binding; keys are only ever added).
+"""Assemble ``closeloop.json`` (its format is a stable interface, docs/formats.md; keys are only ever added).
 
 Binding keys: ``effects`` (ordered by how much each explains, most first; each with ``name``,
 ``params``, ``error_reduction``, ``evidence``), ``unexplained``, ``error_before``,
