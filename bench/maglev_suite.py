@@ -3,20 +3,23 @@
     python bench/maglev_suite.py [--draws 24] [--null 20] [--seed 20261126] [--processes 2]
                                  [--center results/rigs/maglev1d/closeloop.json] [--out suite.jsonl]
 
-Each draw builds a rig that is not the model: every calibratable parameter is drawn uniformly
-within one prior standard deviation of the rig's centre (the parameters the real recordings
-calibrated, from ``--center``; without it the values the device's physical checks imply on the
-step recording), rigs whose linearised loop is unstable at the operating point are drawn again
-(such a rig cannot levitate), and one library effect of the device with a size drawn from its
-range (:data:`SIZES`), or none in the null draws. The rig's data are a replay of that rig driven
-by a real recording's reference (drawn among the five), from that recording's states, with a
+Each draw takes a real recording (drawn among the five) and builds a rig that is not the model:
+every calibratable parameter is drawn uniformly within one prior standard deviation of the rig's
+centre (the parameters the real recordings calibrated, from ``--center``; without it the values
+the device's physical checks imply on the step recording); rigs outside the config's physical
+ranges or whose linearised loop is unstable at the operating point are drawn again, and so are
+rigs whose replay touches a stop or never levitates (such a rig cannot levitate with the rig's
+controller). The rig gets one library effect with a size drawn from its range (:data:`SIZES`),
+among the effects the device can identify on that recording, or none in the null draws. The
+rig's data are a replay of that rig driven by the recording's reference, from its states, with a
 seed of its own; the analysis (:func:`ssamb.closeloop.analyse`) sees only the data and the
 published-parameter model.
 
 A draw with an effect passes when the effect is found (first in the list of effects) and its
 size is within three standard errors or 25 % of the truth; a null draw passes when no effect is
-declared. Effects the device says the recordings cannot identify (their parameterisation returns
-a reason) are not drawn and are listed. One JSON line per draw goes to ``--out`` as it ends; the
+declared. Effects the device says a recording cannot identify (their parameterisation returns
+a reason: absorbed by the calibrated parameters, or visible only across levels) are not drawn
+there and are listed with the reason. One JSON line per draw goes to ``--out`` as it ends; the
 summary printed at the end: pass rates, per effect, false alarms, time per draw.
 """
 from __future__ import annotations
@@ -49,6 +52,8 @@ SIZES = {
     "amplifier_drop": ("drop_v", 0.5, 1.5, False),
     "current_offset": ("offset_a", 0.01, 0.03, True),
     "resistance_drift": ("rate_ohm_per_s", 0.005, 0.02, False),
+    "remanence": ("mmf_a", 0.01, 0.03, True),
+    "sensor_nonlinearity": ("curvature_per_m", 10.0, 28.0, True),
 }
 
 
@@ -61,10 +66,13 @@ def _center(dev, cfg, path: str | None) -> dict:
     return dev.initial_estimate(dev.record(arrays, meta, cfg, "centre"), cfg)
 
 
-def _rig_config(dev, cfg, center, rng, settings):
+def _rig_config(dev, cfg, center, rng, settings=None):
     """A rig's parameters: uniform within one prior sd of the centre, drawn until its loop is stable."""
     from ssamb.config import apply_overrides, get
     from ssamb.maglev1d.checks import loop_poles
+
+    from ssamb.config import ConfigError
+    from ssamb.maglev1d.config import validate
 
     pri = dev.priors(cfg)
     for _ in range(50):
@@ -75,6 +83,10 @@ def _rig_config(dev, cfg, center, rng, settings):
             u = rng.uniform(-1.0, 1.0)
             ov[key] = c * (1.0 + u * sd) if nom != 0 else c + u * sd
         rig = apply_overrides(cfg, ov)
+        try:
+            validate(rig)                  # a physical rig: no negative drop, positive scales
+        except ConfigError:
+            continue
         if loop_poles(rig, 0.005)["stable"]:
             return ov, rig
     raise RuntimeError("no stable rig in 50 draws around the centre")
@@ -113,30 +125,30 @@ def _found(true: dict, rep: dict) -> list[str]:
 def run_draw(args) -> dict:
     k, with_effect, seed, center, names = args
     from ssamb.closeloop import analyse
-    from ssamb.closeloop.settings import settings_from_config
     from ssamb.device import get_device
+    from ssamb.io import DataError
 
     dev = get_device("maglev1d")
     cfg = dev.default_config()
-    settings = settings_from_config(cfg, dev)
-    from ssamb.io import DataError
-
     rng = np.random.default_rng([seed, k])
-    true = _effect(names[int(rng.integers(len(names)))], rng) if with_effect else None
+    paths = [p for p in RECORDINGS if names.get(p.name)] if with_effect else list(RECORDINGS)
+    path = paths[int(rng.integers(len(paths)))]
+    true = _effect(names[path.name][int(rng.integers(len(names[path.name])))], rng) if with_effect else None
+    arrays, meta = dev.load(path)
+    rec = dev.record(arrays, meta, cfg, path.name)
     for attempt in range(20):            # a rig whose ball never levitates makes no data: draw again
-        ov, rig = _rig_config(dev, cfg, center, rng, settings)
-        path = RECORDINGS[int(rng.integers(len(RECORDINGS)))]
-        arrays, meta = dev.load(path)
-        rec = dev.record(arrays, meta, cfg, path.name)
+        ov, rig = _rig_config(dev, cfg, center, rng, None)
         out = dev.replay(rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
         data = {**arrays, **{c: out.channels[c] for c in dev.channels}}
+        if out.contact:
+            continue
         try:
             dev.record(data, meta, cfg, path.name)
             break
         except DataError:
             continue
     else:
-        return {"draw": k, "effect": true, "failures": ["no rig that levitates in 20 draws"]}
+        return {"draw": k, "effect": true, "recording": path.stem, "failures": ["no rig that levitates in 20 draws"]}
     t0 = time.perf_counter()
     try:
         rep = analyse(data, meta, cfg, device=dev)
@@ -145,6 +157,7 @@ def run_draw(args) -> dict:
     fails = _found(true, rep) if true else ([f"effects declared: {[e['name'] for e in rep['effects']]}"]
                                             if rep["effects"] else [])
     return {"draw": k, "effect": true, "recording": path.stem, "rig": ov, "failures": fails,
+            "summary": rep.get("summary", ""),
             "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {})}
                       for e in rep["effects"]],
             "parameters": {key: [p["value"], p["se"], ov.get(key)] for key, p in rep["parameters"].items()},
@@ -167,17 +180,24 @@ def main() -> None:
     dev = get_device("maglev1d")
     cfg = dev.default_config()
     settings = settings_from_config(cfg, dev)
-    arrays, meta = dev.load(RECORDINGS[0])
-    rec = dev.record(arrays, meta, cfg, RECORDINGS[0].name)
-    names, unidentifiable = [], {}
-    for n in dev.library:
-        why = dev.effect_model(n, {}, rec, settings)
-        (unidentifiable.__setitem__(n, why) if isinstance(why, str) else names.append(n))
-    names = [n for n in names if n in SIZES]
+    names, unidentifiable = {}, {}
+    for path in RECORDINGS:
+        arrays, meta = dev.load(path)
+        rec = dev.record(arrays, meta, cfg, path.name)
+        names[path.name] = []
+        for n in dev.library:
+            why = dev.effect_model(n, {}, rec, settings)
+            if isinstance(why, str):
+                unidentifiable.setdefault(n, {})[path.stem.split("_")[1]] = why
+            elif n in SIZES:
+                names[path.name].append(n)
     center = _center(dev, cfg, a.center)
-    print(f"effects drawn: {', '.join(names)}", flush=True)
+    drawn = sorted({n for v in names.values() for n in v})
+    print(f"effects drawn: {', '.join(drawn)}", flush=True)
     for n, why in unidentifiable.items():
-        print(f"not drawn ({n}): {why}", flush=True)
+        recs = sorted(why)
+        where = "on every recording" if len(recs) == len(RECORDINGS) else f"on {', '.join(recs)}"
+        print(f"not drawn {where} ({n}): {next(iter(why.values()))}", flush=True)
     jobs = [(k, True, a.seed, center, names) for k in range(a.draws)]
     jobs += [(a.draws + k, False, a.seed, center, names) for k in range(a.null)]
     t0 = time.perf_counter()
@@ -193,7 +213,7 @@ def main() -> None:
     null = [d for d in res if not d["effect"]]
     ok = sum(not d["failures"] for d in eff)
     print(f"\nwith an effect: {ok} of {len(eff)} pass ({100 * ok / max(len(eff), 1):.0f} %)")
-    for n in names:
+    for n in drawn:
         sel = [d for d in eff if d["effect"]["name"] == n]
         if sel:
             print(f"  {n}: {sum(not d['failures'] for d in sel)} of {len(sel)}")

@@ -49,7 +49,7 @@ from . import controller as _ctl
 from .physics import equilibrium_current_a, inductance_h
 
 __all__ = ["coil_time_constant", "equilibrium_currents", "noise_levels", "loop_poles", "start_estimate",
-           "current_at_rest", "face_reading"]
+           "mean_force_offset", "current_at_rest", "face_reading"]
 
 
 def _levitated_steady(arrays: Mapping, cfg: Mapping, y_max_m: float = 0.012) -> np.ndarray:
@@ -188,9 +188,10 @@ def start_estimate(arrays: Mapping, cfg: Mapping) -> dict:
     if k0 > 0:
         out["magnet.k0_h"] = k0
     e = equilibrium_currents(arrays, cfg)
+    b = cfg["ball"]
+    c0 = np.sqrt(2 * b["mass_kg"] * b["gravity_m_per_s2"] / (mg_["k_h"] * mg_["a_m"]))
+    gs = float(cfg["sensors"]["position_gain"])
     if e["plateaus"]:
-        b = cfg["ball"]
-        c0 = np.sqrt(2 * b["mass_kg"] * b["gravity_m_per_s2"] / (mg_["k_h"] * mg_["a_m"]))
         ym, im = np.array(e["y_m"]), np.array(e["i_a"])
         if "length_m" in e:
             slope = np.polyfit(ym, im, 1)[0]
@@ -198,8 +199,38 @@ def start_estimate(arrays: Mapping, cfg: Mapping) -> dict:
             out["sensors.position_gain"] = float(gs)
             out["sensors.position_offset_m"] = float(mg_["a_m"] * gs - e["length_m"])
         else:
-            out["sensors.position_offset_m"] = float(np.mean(mg_["a_m"] + ym - im / c0))
+            out["sensors.position_offset_m"] = float(np.mean(ym - gs * (im / c0 - mg_["a_m"])))
+    else:
+        o = mean_force_offset(arrays, cfg, gs)
+        if o is not None:
+            out["sensors.position_offset_m"] = o
     return {k: float(v) for k, v in out.items()}
+
+
+def mean_force_offset(arrays: Mapping, cfg: Mapping, gs: float) -> float | None:
+    r"""The sensor's zero :math:`o_s` that makes the force law carry the weight on average over the
+    levitated samples of a record without settled plateaus (a moving reference): the ball's mean
+    acceleration over a long stretch is zero, so
+    :math:`\overline{(i/(c_0 (a + (y_s - o_s)/g_s)))^2} = 1` with :math:`c_0 = \sqrt{2 m g/(k a)}`
+    (published force law, scale ``gs``); None when no zero in the sensor's range satisfies it."""
+    from scipy.optimize import brentq
+
+    y, i = (np.asarray(arrays[c], float) for c in ("y", "i"))
+    m = _levitated_steady(arrays, cfg)
+    if m.sum() < 100:
+        return None
+    b, mg_ = cfg["ball"], cfg["magnet"]
+    c0 = np.sqrt(2 * b["mass_kg"] * b["gravity_m_per_s2"] / (mg_["k_h"] * mg_["a_m"]))
+    ym, im = y[m], i[m]
+
+    def excess(o):
+        gap = mg_["a_m"] + (ym - o) / gs
+        return float(np.mean((im / (c0 * np.maximum(gap, 1e-4))) ** 2)) - 1.0
+
+    lo, hi = -0.01, float(np.min(ym)) + gs * mg_["a_m"] * 0.9
+    if not excess(lo) < 0.0 < excess(hi):
+        return None
+    return float(brentq(excess, lo, hi, xtol=1e-7))
 
 
 def current_at_rest(arrays: Mapping, cfg: Mapping, rest_s: float = 0.2) -> dict:

@@ -11,7 +11,11 @@ from ...device import EffectModel, log10_p_two_sided, log10_p_upper
 from ...errors import InputError
 
 __all__ = ["EffectError", "number", "offset_evidence", "ratio_evidence", "force_like_evidence", "force_like_claim",
-           "delay_evidence", "delay_model", "entries", "scalar_model", "TS_S"]
+           "delay_evidence", "delay_model", "entries", "scalar_model", "TS_S", "calibrated", "reference_span_m",
+           "MIN_SPAN_M"]
+
+#: the reference's range over the compared samples below which a record shows one operating level
+MIN_SPAN_M = 5e-4
 
 #: the controller's period: delays are fractions of a sample
 TS_S = 0.01
@@ -134,3 +138,17 @@ def operating_point(record) -> tuple[float, float]:
     y, i = record.channels["y"], record.channels["i"]
     idx = np.concatenate([np.arange(a, b) for a, b in record.usable]) if record.usable else np.arange(len(y))
     return float(np.mean(y[idx])), float(np.mean(i[idx]))
+
+
+def calibrated(st, keys) -> bool:
+    """Whether every one of the dotted config ``keys`` is calibrated in the settings ``st``."""
+    cal = getattr(st, "calibration", None) or {}
+    return all(k in cal for k in keys)
+
+
+def reference_span_m(record) -> float:
+    """The range of the position reference over the record's compared samples (m)."""
+    yd = record.inputs["yd"]
+    idx = np.concatenate([np.arange(a, b) for a, b in record.usable]) if record.usable else np.arange(len(yd))
+    return float(np.ptp(yd[idx])) if len(idx) else 0.0
+

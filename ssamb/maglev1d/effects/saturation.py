@@ -9,10 +9,17 @@ command with it), growing steeply with the operating current; the position is he
 positive offsets of ``i`` and ``u``, none of ``y``.
 
 Fit: :math:`c \ge 0`, started at :math:`2\Delta i/i_0^3`.
+
+Identifiability: only across operating levels. At one level a saturating core needs more current,
+as a smaller force constant does, and its lower force gain :math:`\partial F/\partial i` is a change
+the calibrated constant and scale take up; the two differ in how the extra current grows with the
+level (:math:`c\,i^2`), which a record whose reference stays at one level (range below
+:data:`~ssamb.maglev1d.effects._common.MIN_SPAN_M`) does not show.
 """
 from __future__ import annotations
 
-from ._common import entries, force_like_claim, force_like_evidence, number, operating_point, scalar_model
+from ._common import (MIN_SPAN_M, calibrated, entries, force_like_claim, force_like_evidence, number,
+                      operating_point, reference_span_m, scalar_model)
 
 NAME = "saturation"
 REQUIRED = ("coefficient_per_a2",)
@@ -39,6 +46,9 @@ claim = force_like_claim
 
 
 def model(hints: dict, record, st):
+    if calibrated(st, ("magnet.k_h",)) and reference_span_m(record) < MIN_SPAN_M:
+        return (f"the reference stays at one level ({1e3 * reference_span_m(record):.2g} mm range): there a saturating "
+                f"core is a smaller calibrated magnet.k_h; the two differ only in how the current grows across levels")
     _, i0 = operating_point(record)
     c0 = 2.0 * max(hints.get("offset_i_a", 0.0), 0.0) / max(i0, 1e-3) ** 3
     return scalar_model(NAME, "coefficient_per_a2", c0, 0.05, 0.0, 3.0)
