@@ -66,8 +66,9 @@ def _center(dev, cfg, path: str | None) -> dict:
     return dev.initial_estimate(dev.record(arrays, meta, cfg, "centre"), cfg)
 
 
-def _rig_config(dev, cfg, center, rng, settings=None):
-    """A rig's parameters: uniform within one prior sd of the centre, drawn until its loop is stable."""
+def _rig_config(dev, cfg, center, rng, settings=None, spread=1.0):
+    """A rig's parameters: uniform within ``spread`` prior sd of the centre, drawn until its loop is
+    stable."""
     from ssamb.config import apply_overrides, get
     from ssamb.maglev1d.checks import loop_poles
 
@@ -80,7 +81,7 @@ def _rig_config(dev, cfg, center, rng, settings=None):
         for key, sd in pri.items():
             nom = float(get(cfg, key))
             c = float(center.get(key, nom))
-            u = rng.uniform(-1.0, 1.0)
+            u = rng.uniform(-1.0, 1.0) * spread
             ov[key] = c * (1.0 + u * sd) if nom != 0 else c + u * sd
         rig = apply_overrides(cfg, ov)
         try:
@@ -123,7 +124,7 @@ def _found(true: dict, rep: dict) -> list[str]:
 
 
 def run_draw(args) -> dict:
-    k, with_effect, seed, center, names = args
+    k, with_effect, seed, center, names, spread = args
     from ssamb.closeloop import analyse
     from ssamb.device import get_device
     from ssamb.io import DataError
@@ -137,7 +138,7 @@ def run_draw(args) -> dict:
     arrays, meta = dev.load(path)
     rec = dev.record(arrays, meta, cfg, path.name)
     for attempt in range(20):            # a rig whose ball never levitates makes no data: draw again
-        ov, rig = _rig_config(dev, cfg, center, rng, None)
+        ov, rig = _rig_config(dev, cfg, center, rng, None, spread)
         out = dev.replay(rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
         data = {**arrays, **{c: out.channels[c] for c in dev.channels}}
         if out.contact:
@@ -173,6 +174,9 @@ def main() -> None:
     ap.add_argument("--center", default=str(REPO / "results" / "rigs" / "maglev1d" / "closeloop.json"),
                     help="closeloop.json of the real rig (its parameters are the rigs' centre)")
     ap.add_argument("--out", default="maglev_suite.jsonl")
+    ap.add_argument("--spread", type=float, default=1.0,
+                    help="rigs within this many prior standard deviations of the centre (1: the suite; "
+                         "smaller: a diagnostic of the effect search alone)")
     a = ap.parse_args()
     from ssamb.closeloop.settings import settings_from_config
     from ssamb.device import get_device
@@ -198,8 +202,8 @@ def main() -> None:
         recs = sorted(why)
         where = "on every recording" if len(recs) == len(RECORDINGS) else f"on {', '.join(recs)}"
         print(f"not drawn {where} ({n}): {next(iter(why.values()))}", flush=True)
-    jobs = [(k, True, a.seed, center, names) for k in range(a.draws)]
-    jobs += [(a.draws + k, False, a.seed, center, names) for k in range(a.null)]
+    jobs = [(k, True, a.seed, center, names, a.spread) for k in range(a.draws)]
+    jobs += [(a.draws + k, False, a.seed, center, names, a.spread) for k in range(a.null)]
     t0 = time.perf_counter()
     res = []
     with mp.get_context("fork").Pool(a.processes) as pool, open(a.out, "a") as fh:
@@ -217,7 +221,12 @@ def main() -> None:
         sel = [d for d in eff if d["effect"]["name"] == n]
         if sel:
             print(f"  {n}: {sum(not d['failures'] for d in sel)} of {len(sel)}")
-    print(f"noise only: {sum(bool(d['failures']) for d in null)} of {len(null)} declared an effect")
+    nodata = [d for d in res if d["failures"] == ["no rig that levitates in 20 draws"]]
+    alarms = sum(bool(d.get("found")) for d in null)
+    print(f"noise only: {alarms} of {len(null)} declared an effect"
+          f"{f' ({sum(d in nodata for d in null)} without data: no rig that levitates)' if nodata else ''}")
+    if nodata:
+        print(f"draws without data (no rig within the spread levitates on the drawn recording): {len(nodata)}")
     secs = [d.get("seconds", math.nan) for d in res]
     print(f"wall {time.perf_counter() - t0:.0f} s on {a.processes} processes; median {np.nanmedian(secs):.0f} s per "
           f"analysis; load average {os.getloadavg()[0]:.1f}")

@@ -167,7 +167,10 @@ def test_checks_published_against_start():
         sec, key = k.split(".")
         cfg[sec][key] = v
     st = DEV.checks(arrays, cfg)
-    assert st["linearised_loop"]["model_stable"]
+    loop = st["linearised_loop"]
+    at_refs = [r for lv, r in zip(loop["levels_m"], loop["spectral_radius"]) if lv >= 0.004 - 1e-9]
+    assert len(at_refs) == 2 and max(at_refs) < 1.0          # stable at the references, 4 and 5 mm
+    assert loop["levels_m"][0] < 0.003 and not loop["model_stable"]   # not at the lowest reading it recovers from
     assert st["command_per_current"]["measured_ohm"] == pytest.approx(st["command_per_current"]["model_ohm"], rel=1e-6)
     assert abs(st["equilibrium_current"]["measured_a"] / st["equilibrium_current"]["model_a"] - 1) < 0.03
 
@@ -192,3 +195,13 @@ def test_checks_read_the_current_at_rest_and_the_ball_at_the_face():
             assert isinstance(c["summary"], str) and c["summary"], (name, key)
         r = K.current_at_rest(arrays, CFG)
         assert 0.010 < r["current_a"] < 0.030, name
+
+
+def test_notes_say_when_the_logged_command_does_not_follow_from_the_controller():
+    """A log whose command is not the rig controller's (here scaled by 0.8) gets a note; the
+    shipped step log, which the controller reproduces, gets none."""
+    arrays, meta = DEV.load(DATA["escalon"])
+    assert not any(n.startswith("u:") for n in DEV.notes(arrays, meta, CFG))
+    a = dict(arrays)
+    a["u"] = 0.8 * arrays["u"]
+    assert any(n.startswith("u: the logged command follows") for n in DEV.notes(a, meta, CFG))

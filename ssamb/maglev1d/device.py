@@ -98,8 +98,8 @@ class Maglev1D(Device):
         """Physical checks of the model with ``cfg`` against one recording (:mod:`.checks`), each with a
         one-line ``summary``: the coil's time constant, the command's incremental resistance and
         offset (the current's response to the command), the equilibrium current on settled plateaus
-        against the force law, the linearised loop at the reference's levels (the rig levitates
-        there), the current reading with the stage off, the position reading of the ball held at
+        against the force law, the linearised loop at the reference's levels and at the lowest reading
+        of the compared parts (0.5 % quantile; the rig levitates there), the current reading with the stage off, the position reading of the ball held at
         the magnet's face, and whether the logged command follows from the logged signals."""
         from . import checks as _chk
 
@@ -134,15 +134,26 @@ class Maglev1D(Device):
                                                      f"{np.min(ratio):.3f}-{np.max(ratio):.3f} times the force law's"}
         levels = np.unique(np.round(np.asarray(arrays["yd"], float), 5))
         levels = levels if len(levels) <= 5 else np.quantile(np.asarray(arrays["yd"], float), [0.1, 0.5, 0.9])
+        lev = np.zeros(len(arrays["y"]), bool)
+        for a, b in self.usable_parts(arrays, cfg, self.stretches(arrays, cfg)):
+            lev[a:b] = True
+        low = float(np.quantile(np.asarray(arrays["y"], float)[lev], 0.005)) if lev.any() else None
+        if low is not None and low < float(np.min(levels)) - 5e-4:
+            levels = np.r_[np.round(low, 5), levels]
         st = self.stable_at(cfg, levels)
         stable = all(r["stable"] for r in st.values())
+        bad = [v for v, r in st.items() if not r["stable"]]
         out["linearised_loop"] = {"levels_m": [float(v) for v in st],
                                   "spectral_radius": [r["spectral_radius"] for r in st.values()],
                                   "least_damping": [r["least_damping"] for r in st.values()],
                                   "model_stable": stable, "rig_levitates": True,
-                                  "summary": f"the rig levitates at {', '.join(f'{1e3 * v:.2f}' for v in st)} mm; the "
-                                             f"model's linearised loop is {'stable' if stable else 'UNSTABLE'} there "
-                                             f"(spectral radius {max(r['spectral_radius'] for r in st.values()):.3f})"}
+                                  "summary": f"the rig levitates at {', '.join(f'{1e3 * v:.2f}' for v in st)} mm (the "
+                                             f"references and the lowest reading it recovers from); the model's "
+                                             f"linearised loop is "
+                                             + ("stable there" if stable else
+                                                f"UNSTABLE at {', '.join(f'{1e3 * v:.2f}' for v in bad)} mm")
+                                             + f" (largest spectral radius "
+                                               f"{max(r['spectral_radius'] for r in st.values()):.3f})"}
         r = _chk.current_at_rest(arrays, cfg)
         if r["samples"]:
             model_i = float(self.knobs(cfg, [])["current_offset_a"])
@@ -237,6 +248,18 @@ class Maglev1D(Device):
             off = np.abs(a / q - np.round(a / q))
             if np.median(off) > 0.05:
                 out.append(f"{c}: values are not whole ADC counts ({q:.4g} per count): filtered, rescaled, or another rig")
+        lev = np.zeros(len(y), bool)
+        for a, b in self.stretches(arrays, cfg):
+            lev[a:b] = True
+        if lev.any():
+            u_ctl, _ = _ctl.run(qy * np.round(y / qy), qi * np.round(i / qi), yd, _ctl.gains_of(cfg))
+            pwm = cfg["controller"]["v_ref_v"] / cfg["amplifier"]["pwm_steps"]
+            share = float(np.mean(np.abs(u_ctl - u)[lev] <= pwm))
+            if share < 0.9:
+                out.append(f"u: the logged command follows from the logged y, i, yd through the rig's controller in only "
+                           f"{100 * share:.0f} % of the levitated samples (within one PWM step): another controller, "
+                           f"a reference other than the logged yd, rounded signals, or a spliced log; the replay runs "
+                           f"the rig's controller on the logged yd")
         return out
 
     def record(self, arrays: Mapping, meta: Mapping, cfg: Mapping, source: str) -> Record:
