@@ -1210,6 +1210,19 @@ def _workflow_cases() -> list[Case]:
         extra("closeloop: {datasets: {gone: gone.npz}, default_dataset: gone}\n"),
     )
     c(
+        "rig recording not found",
+        ("closeloop.rigs.maglev1d.hold.gone", "gone.npz"),
+        extra("closeloop: {rigs: {maglev1d: {device: maglev1d, config: null, fit: {escalon: "
+              "resources/maglev1d/dataset_escalon_20251217_205858.npz}, hold: {gone: gone.npz}}}}\n"),
+    )
+    c(
+        "rig of an unknown device",
+        ("closeloop.rigs.maglev1d", "levitron"),
+        extra("closeloop: {rigs: {maglev1d: {device: levitron, config: null, fit: {escalon: "
+              "resources/maglev1d/dataset_escalon_20251217_205858.npz}, hold: {multiescalon: "
+              "resources/maglev1d/dataset_multiescalon_20251217_210203.npz}}}}\n"),
+    )
+    c(
         "closeloop data with NaN: the failed job's log",
         ("bad.npz", "'x_meas'", "non-finite"),
         nan_data,

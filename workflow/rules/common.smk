@@ -12,6 +12,8 @@ from pathlib import Path as _Path
 
 from ssamb.channels import SUBSYSTEMS
 from ssamb.config import ConfigError, read_yaml_mapping, validate_config
+from ssamb.device import get_device
+from ssamb.errors import InputError
 from ssamb.stages import check_closeloop_settings
 from ssamb.scenarios import Plan, identification_config, run_configs, run_prefix, sim_config as _sim_config, study_variants
 
@@ -80,6 +82,15 @@ try:
     for _name, _path in (config["closeloop"].get("datasets") or {}).items():
         if not _Path(_path).is_file():
             raise ConfigError(f"config key 'closeloop.datasets.{_name}': data file '{_path}' not found")
+    for _rig, _spec in (config["closeloop"].get("rigs") or {}).items():
+        for _part in ("fit", "hold"):
+            for _name, _path in (_spec.get(_part) or {}).items():
+                if not _Path(_path).is_file():
+                    raise ConfigError(f"config key 'closeloop.rigs.{_rig}.{_part}.{_name}': data file '{_path}' not found")
+        try:
+            get_device(_spec.get("device")).load_config(_spec.get("config"))
+        except InputError as _err:
+            raise ConfigError(f"config key 'closeloop.rigs.{_rig}': {_err}") from None
     RUN_CONFIGS = run_configs(config)
     for _run, _cfg in RUN_CONFIGS.items():
         try:
