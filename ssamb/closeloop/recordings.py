@@ -70,15 +70,17 @@ def combine_estimates(values, ses, max_z: float = 3.0) -> dict:
             "agree": bool(zmax <= max_z), "n": k}
 
 
-def combine_parameters(reports: Mapping[str, dict], max_z: float = 3.0) -> tuple[dict, dict, dict]:
+def combine_parameters(reports: Mapping[str, dict], max_z: float = 3.0,
+                       session: tuple = ()) -> tuple[dict, dict, dict]:
     """The calibrated parameters of several recordings' ``closeloop.json``: combined values,
     agreement, and the parameters no recording identified (with each recording's reason).
 
     Returns ``(parameters, agreement, not_identifiable)``: ``parameters`` in the format of
     ``closeloop.json`` (``value``, ``se``, ``nominal``, ``relative_change``, ``identifiable``) plus
-    ``per_recording``; ``agreement`` per parameter identified in two or more recordings.
+    ``per_recording``; ``agreement`` per parameter identified in two or more recordings. The
+    ``session`` parameters (:attr:`Settings.session`) are left out of all three.
     """
-    keys = list(dict.fromkeys(k for r in reports.values() for k in r.get("parameters", {})))
+    keys = list(dict.fromkeys(k for r in reports.values() for k in r.get("parameters", {}) if k not in session))
     params, agree = {}, {}
     for key in keys:
         per = {n: r["parameters"][key] for n, r in reports.items() if key in r.get("parameters", {})}
@@ -94,7 +96,7 @@ def combine_parameters(reports: Mapping[str, dict], max_z: float = 3.0) -> tuple
     not_ident = {}
     for n, r in reports.items():
         for key, why in r.get("not_identifiable", {}).items():
-            if key not in params:
+            if key not in params and key not in session:
                 not_ident.setdefault(key, {})[n] = why
     return params, agree, {k: "; ".join(f"{n}: {w}" for n, w in v.items()) for k, v in not_ident.items()}
 
@@ -250,6 +252,36 @@ def _holdout_z(dev, name: str, arrays, meta, cfg, settings, overrides: dict, wit
         replay.close()
 
 
+def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, settings, workers: int) -> tuple:
+    """The session parameters of one held-out recording, calibrated on its own fitting part with
+    everything else at ``overrides`` (the combined model): ``(session overrides, the part's slice
+    to judge, their estimates)``."""
+    from ..config import apply_overrides
+    from .calibration import calibrate_model, findings, parameter_specs
+    from .comparison import Comparison
+    from .data import make_split
+    from .estimate import EstimateSettings
+    from .replay import Replayer
+
+    split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s, settings.min_holdout_s, name)
+    base = apply_overrides(cfg, overrides) if overrides else cfg
+    specs = parameter_specs(base, {k: settings.calibration[k] for k in settings.session})
+    replay = Replayer(base, rec, workers=workers)
+    try:
+        cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings)
+        cmp.calibrate_noise(None, effects)
+        init = dev.initial_estimate(cmp.record, base)
+        start = np.array([sp.theta_of(init[sp.key]) if sp.key in init else 0.0 for sp in specs])
+        cal = calibrate_model(cmp, specs, effects, EstimateSettings(**settings.estimate), settings.identifiable_ratio,
+                              settings.conflict_z, start=start)
+    finally:
+        replay.close()
+    found, _ = findings(specs, cal.theta, cal.ident)
+    ov = {sp.key: sp.value(float(t)) for sp, t in zip(specs, cal.theta)}
+    return ov, split.hold, {k: {"value": ov[k], "se": found[k]["se"] if k in found else None,
+                                "identified": k in found} for k in ov}
+
+
 def analyse_recordings(fit: Mapping[str, tuple], hold: Mapping[str, tuple], cfg: Mapping, device="amb",
                        workers: int = 1, progress: bool = False, reports: Mapping[str, dict] | None = None) -> dict:
     """Calibrate on the fitting recordings, judge on the held-out ones (module docstring).
@@ -289,10 +321,13 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
     for name, (arrays, meta) in fit.items():
         if name not in reps:
             reps[name] = _analyse(arrays, meta, cfg, source=name, progress=progress, workers=workers, device=dev)[0]
-    params, agree, not_ident = combine_parameters(reps)
+    session = tuple(settings.session)
+    params, agree, not_ident = combine_parameters(reps, session=session)
     found = combine_effects(reps)
     overrides = {k: p["value"] for k, p in params.items()}
     effects = [f["spec"] for f in found]
+    sessions = {k: {"fit": {n: r["parameters"][k] for n, r in reps.items() if k in r.get("parameters", {})},
+                    "hold": {}} for k in session}
     seeds = list(range(1, settings.replay_seeds + 1))
     holdout, ev_z, contact, art = {}, {i: [] for i in range(len(found))}, {}, []
     pooled = {c: {"before": [], "after": [], "noise": []} for c in dev.channels}
@@ -300,11 +335,17 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
         dev.validate(arrays, name)
         rec = dev.record(arrays, meta, cfg, name)
         sl = _analysed_range(rec, settings)
+        ov = dict(overrides)
+        if session:                       # re-zeroed on the recording's own first part, judged on the rest
+            sov, sl, est = _session_fit(dev, name, rec, cfg, overrides, effects, settings, workers)
+            ov.update(sov)
+            for k, e in est.items():
+                sessions[k]["hold"][name] = e
         replay = Replayer(cfg, rec, workers=workers)
         try:
             nominal = replay.mean((), None, {}, seeds)
-            runs = replay.runs(effects, None, overrides, seeds)
-            final = replay.mean(effects, None, overrides, seeds)
+            runs = replay.runs(effects, None, ov, seeds)
+            final = replay.mean(effects, None, ov, seeds)
         finally:
             replay.close()
         errs = _channel_errors(dev, rec, sl, nominal, final, runs)
@@ -319,7 +360,7 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
             pooled[c]["noise"].append((d["noise_rms"] ** 2, d["samples"]))
         for i in range(len(found)):
             without = [e for j, e in enumerate(effects) if j != i]
-            ev_z[i] += _holdout_z(dev, name, arrays, meta, cfg, settings, overrides, effects, without, workers)
+            ev_z[i] += _holdout_z(dev, name, arrays, meta, cfg, settings, ov, effects, without, workers)
     from ..config import apply_overrides
 
     final_cfg = apply_overrides(cfg, overrides) if overrides else cfg
@@ -351,8 +392,11 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
             "effects_rejected": rejected, "holdout": holdout, "stops_hit_by_model_only": contact,
             "physical_checks": checks, "effects_not_identifiable": _not_identifiable_effects(dev, hold, cfg, settings),
             "recordings": {n: _brief(r) for n, r in reps.items()},
+            "session_parameters": sessions,
             "validation": {"fit_recordings": list(reps), "holdout_recordings": list(hold),
-                           "errors_on": "held-out recordings", "alpha_accept": settings.alpha_accept},
+                           "errors_on": ("held-out recordings" + (", after each one's own fitting part, on which its "
+                                                                  "session parameters are calibrated" if session else "")),
+                           "alpha_accept": settings.alpha_accept},
             "data": {"device": dev.name}}
     return rep, {"device": dev, "holdout": art}
 

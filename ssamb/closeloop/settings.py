@@ -61,6 +61,12 @@ class Settings:
         Calibratable nominal parameters: dotted config key -> prior tolerance (standard
         deviation; relative to the nominal value, absolute in the key's unit when the nominal
         value is 0). Empty: no calibration; None: the device's priors.
+    session : tuple of str
+        Calibrated parameters (keys of ``calibration``) that may change between recordings of one
+        rig, like a sensor's alignment after the rig is touched. Over several recordings
+        (:mod:`ssamb.closeloop.recordings`) they are neither combined nor required to agree; a
+        held-out recording's are calibrated on its own fitting part, with everything else fixed,
+        and its errors are taken on the rest.
     calibration_step_rel : float
         Largest finite-difference step of a relative parameter (a wider tolerance reaches where
         the response is no longer linear).
@@ -127,6 +133,7 @@ class Settings:
     floor_relative: float = 1e-5
     replay_seeds: int = 8
     calibration: dict | None = None
+    session: tuple = ()
     calibration_step_rel: float = 0.05
     identifiable_ratio: float = 1.0 / 3.0
     conflict_z: float = 3.0
@@ -179,7 +186,12 @@ def settings_from_config(cfg: Mapping | None, device=None) -> Settings:
                          f"closeloop.datasets (known: {', '.join(ds) or 'none'})")
     if kw.get("calibration") is None and device is not None:
         kw["calibration"] = dict(device.priors(cfg or {}))
+    if "session" in kw:
+        kw["session"] = tuple(kw["session"] or ())
     s = Settings(**kw)
+    unknown = [k for k in s.session if k not in (s.calibration or {})]
+    if unknown:
+        raise _err(f"config key 'closeloop.session': {', '.join(unknown)} not in closeloop.calibration")
     if not 0.1 <= s.fit_fraction <= 0.95:
         raise _err(f"config key 'closeloop.fit_fraction': must be in [0.1, 0.95] (got {s.fit_fraction})")
     for name in ("alpha_evidence", "alpha_accept", "alpha_noise"):
