@@ -37,6 +37,21 @@ def _parameters(C: dict) -> list:
     return out
 
 
+def _sessions(C: dict) -> list:
+    rows = []
+    for key, s in C.get("session_parameters", {}).items():
+        for part in ("fit", "hold"):
+            for rec, p in s.get(part, {}).items():
+                se = p.get("se")
+                rows.append([key, rec, "fitting" if part == "fit" else "held out (its own first part)",
+                             f"{p['value']:.5g}" + (f" +- {se:.2g}" if se is not None else " (not identified)")])
+    if not rows:
+        return []
+    return [Table(["session parameter", "recording", "calibrated on", "value"], rows,
+                  caption="Parameters that may change between recordings (closeloop.session): calibrated per "
+                          "recording, never combined")]
+
+
 def _errors(C: dict) -> list:
     rows = []
     for name, h in C.get("holdout", {}).items():
@@ -94,16 +109,22 @@ def rigs(ctx: Context) -> Section | None:
     sec = Section("7. Close the loop on a real rig's measurements (beyond the paper)").add(
         "The same engine as in the previous section, on measurements a real rig made: the recordings are split "
         "into fitting and held-out ones; each fitting recording is calibrated and searched on its own (its "
-        "levitated stretches), the parameters are combined where the recordings agree, and every error below is "
-        "on recordings the fit never saw.")
+        "levitated stretches), the parameters are combined (and their agreement between recordings tested), and "
+        "every error below is on recordings the fit never saw.")
     for d in dirs:
         C = read_json(d / "closeloop.json")
         v = C["validation"]
+        stops = [r for r, hit in C.get("stops_hit_by_model_only", {}).items() if hit]
+        off = [k for k, a in C.get("agreement", {}).items() if not a["agree"]]
         sec.add(f"### Rig `{d.name}` (device `{C['data']['device']}`)",
-                f"Fitted on {', '.join(v['fit_recordings'])}; held out: {', '.join(v['holdout_recordings'])}. "
-                f"Residual on the held-out recordings {'not ' if C['unexplained'] else ''}within twice the noise floor "
+                f"Fitted on {', '.join(v['fit_recordings'])}; held out: {', '.join(v['holdout_recordings'])}; "
+                f"errors on {v['errors_on']}. "
+                + (f"**The final model's replay touches a stop where the data do not** on {', '.join(stops)}. "
+                   if stops else "The final model's replays touch no stop the data do not. ")
+                + (f"**Recordings disagree** on {', '.join(off)} (more than 3 standard errors apart). " if off else "")
+                + f"Residual on the held-out recordings {'not ' if C['unexplained'] else ''}within twice the noise floor "
                 "on every channel where the published model stood above it.",
-                *_parameters(C), *_errors(C), *_effects(C), *_checks(C))
+                *_parameters(C), *_sessions(C), *_errors(C), *_effects(C), *_checks(C))
         for fig in C.get("figures", []):
             sec.add(Image(d / fig))
     return sec
