@@ -122,8 +122,8 @@ def rigs(ctx: Context) -> Section | None:
                 + (f"**The final model's replay touches a stop where the data do not** on {', '.join(stops)}. "
                    if stops else "The final model's replays touch no stop the data do not. ")
                 + (f"**Recordings disagree** on {', '.join(off)} (more than 3 standard errors apart). " if off else "")
-                + f"Residual on the held-out recordings {'not ' if C['unexplained'] else ''}within twice the noise floor "
-                "on every channel where the published model stood above it.",
+                + f"Residual on the held-out recordings {'not ' if C['unexplained'] else ''}within twice the "
+                "noise floor on every channel where the published model stood above it.",
                 *_parameters(C), *_sessions(C), *_errors(C), *_effects(C), *_checks(C))
         for fig in C.get("figures", []):
             sec.add(Image(d / fig))
