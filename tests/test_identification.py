@@ -445,3 +445,45 @@ def test_hankel_excitation_flags_dynamically_dependent_inputs():
     assert dep["hankel_min_relative_sv"] < 1e-6 < free["hankel_min_relative_sv"]
     # instantaneous singular values do not see it
     assert dep["relative_singular_values"][-1] > 1e-2
+
+
+# ---------------------------------------------------------------------------------------
+# the memo of shared work (ssamb.identification.memo): bit-identical results
+# ---------------------------------------------------------------------------------------
+def _matrices(m):
+    return [np.asarray(a).tobytes() for a in (m.A, m.B, m.C, m.D, m.K, m.u_op, m.y_op)]
+
+
+def test_memo_gives_bit_identical_models_and_reuses_the_shared_work(data):
+    """Every method, identified afresh (no memo, plain SIPPY) and inside one memo after the
+    others (so that the operating point, the projections and the weighted SVD come from memory),
+    gives the same bits; the forced-stable variant and a second order reuse the same SVD."""
+    from ssamb.identification.memo import identification_memo, no_memo
+
+    u, y, _, _ = data
+    runs = [("N4SID", 4, False), ("MOESP", 4, False), ("CVA", 4, False), ("PARSIM-K", 4, False),
+            ("N4SID", 4, True), ("MOESP", 3, False), ("PARSIM-K", 3, False)]
+    with no_memo():
+        fresh = [identify(u, y, n, meth, FS, ss_f=12, ss_p=12, A_stability=st) for meth, n, st in runs]
+    with identification_memo() as memo:
+        shared = [identify(u, y, n, meth, FS, ss_f=12, ss_p=12, A_stability=st) for meth, n, st in runs]
+    assert memo.hits >= 10
+    for (meth, n, st), a, b in zip(runs, fresh, shared):
+        assert _matrices(a) == _matrices(b), (meth, n, st)
+    # outside the block SIPPY is untouched and nothing is kept
+    from sippy_unipi import OLSims_methods, functionsetSIM
+
+    assert OLSims_methods.Z_dot_PIort is functionsetSIM.Z_dot_PIort
+    assert OLSims_methods.SVD_weighted.__module__ == "sippy_unipi.OLSims_methods"
+
+
+def test_memo_hands_out_read_only_arrays():
+    from ssamb.identification.memo import identification_memo, memoised
+
+    with identification_memo():
+        a = memoised("twice", lambda x: 2 * x, np.arange(3.0))
+        b = memoised("twice", lambda x: 3 * x, np.arange(3.0))  # a hit: the first value
+        assert b is a and not a.flags.writeable
+        with pytest.raises(ValueError):
+            a[0] = 1.0
+    assert memoised("twice", lambda x: 3 * x, np.arange(3.0))[1] == 3.0  # no memo outside

@@ -36,6 +36,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..io import DataError
+from .memo import identification_memo
 from .model import IdentifiedModel
 from .selection import STABLE_SUBSYSTEMS
 from .subspace import identify
@@ -107,33 +108,37 @@ def _fingerprint(m: IdentifiedModel) -> str:
 
 def identify_candidates(u, y, subsystem: str, order: int, settings: Sequence[Mapping], fs_hz: float,
                         input_names, output_names, *, input_directions=None,
-                        known: Sequence[Candidate] = (), progress: bool = False) -> list[Candidate]:
+                        known: Sequence[Candidate] = (), progress: bool = False,
+                        affine: bool = True) -> list[Candidate]:
     """Identify one subsystem with each of ``settings``; a failure is a candidate with its error.
 
     ``known`` are candidates already identified (e.g. by the method comparison) and are reused
     when their settings match. Duplicated matrices are marked ``same_as`` the first label.
+    ``affine`` is passed to :func:`~ssamb.identification.identify` (every candidate alike).
     """
     from tqdm import tqdm
 
     done = {_key(c.settings): c for c in known}
     out, seen = [], {}
-    for s in tqdm(settings, desc=f"candidates {subsystem}", disable=not progress, leave=False, mininterval=5.0):
-        c = done.get(_key(s))
-        if c is None:
-            try:
-                kw = {k: s[k] for k in ("ss_f", "ss_p", "A_stability", "refine")}
-                m = identify(u, y, order, s["method"], fs_hz, input_names, output_names,
-                             input_directions=input_directions, **kw)
-                c = Candidate(subsystem, dict(s), m)
-            except DataError:
-                raise
-            except Exception as exc:  # one failing setting must not hide the others
-                c = Candidate(subsystem, dict(s), None, f"{type(exc).__name__}: {exc}")
-        if c.model is not None:
-            fp = _fingerprint(c.model)
-            c = Candidate(c.subsystem, c.settings, c.model, c.error, seen.get(fp))
-            seen.setdefault(fp, c.label)
-        out.append(c)
+    with identification_memo():  # settings of one horizon share SIPPY's projections (exact)
+        for s in tqdm(settings, desc=f"candidates {subsystem}", disable=not progress, leave=False,
+                      mininterval=5.0):
+            c = done.get(_key(s))
+            if c is None:
+                try:
+                    kw = {k: s[k] for k in ("ss_f", "ss_p", "A_stability", "refine")}
+                    m = identify(u, y, order, s["method"], fs_hz, input_names, output_names,
+                                 input_directions=input_directions, affine=affine, **kw)
+                    c = Candidate(subsystem, dict(s), m)
+                except DataError:
+                    raise
+                except Exception as exc:  # one failing setting must not hide the others
+                    c = Candidate(subsystem, dict(s), None, f"{type(exc).__name__}: {exc}")
+            if c.model is not None:
+                fp = _fingerprint(c.model)
+                c = Candidate(c.subsystem, c.settings, c.model, c.error, seen.get(fp))
+                seen.setdefault(fp, c.label)
+            out.append(c)
     return out
 
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..io import DataError
 from .data import FS_HZ_DEFAULT, _as_2d, _names, check_io_data
+from .memo import identification_memo
 from .model import IdentifiedModel, auto_horizon
 from .subspace import arx_equilibrium, identify
 
@@ -128,22 +129,23 @@ def order_scan(u, y, orders=range(1, 16), method: str = "N4SID", fs_hz: float = 
     fits = np.full((len(orders), l_), np.nan)
     rho = np.full(len(orders), np.nan)
     horizons, errors = [], {}
-    for i, n in enumerate(orders):
-        try:
-            mdl = identify(ue, ye, int(n), method, fs_hz, input_names, output_names, **identify_kwargs)
-            h = auto_horizon(mdl.A, len(yv)) if horizon == "auto" else horizon
-            fits[i] = mdl.fit(uv, yv, horizon=h)
-            rho[i] = mdl.spectral_radius
-            horizons.append(h)
-        except (RuntimeError, np.linalg.LinAlgError, ValueError) as exc:
-            if isinstance(exc, DataError):
-                raise
-            errors[int(n)] = str(exc)
-            horizons.append(None)
-    sv = None
-    if singular_values and method in _SIM_METHODS + ("PARSIM-K",):
-        sv = subspace_singular_values(ue, ye, method, identify_kwargs.get("ss_f", 30),
-                                      identify_kwargs.get("ss_p", 30))
+    with identification_memo():  # the orders share everything up to SIPPY's SVD (exact)
+        for i, n in enumerate(orders):
+            try:
+                mdl = identify(ue, ye, int(n), method, fs_hz, input_names, output_names, **identify_kwargs)
+                h = auto_horizon(mdl.A, len(yv)) if horizon == "auto" else horizon
+                fits[i] = mdl.fit(uv, yv, horizon=h)
+                rho[i] = mdl.spectral_radius
+                horizons.append(h)
+            except (RuntimeError, np.linalg.LinAlgError, ValueError) as exc:
+                if isinstance(exc, DataError):
+                    raise
+                errors[int(n)] = str(exc)
+                horizons.append(None)
+        sv = None
+        if singular_values and method in _SIM_METHODS + ("PARSIM-K",):
+            sv = subspace_singular_values(ue, ye, method, identify_kwargs.get("ss_f", 30),
+                                          identify_kwargs.get("ss_p", 30))
     names = _names(output_names, l_, "y", "output_names")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -182,19 +184,20 @@ def compare_methods(u, y, order: int, methods=("N4SID", "MOESP", "CVA", "PARSIM-
     """
     ue, ye, uv, yv = _split(u, y, u_val, y_val, val_fraction)
     out = []
-    for meth in methods:
-        try:
-            mdl = identify(ue, ye, order, meth, fs_hz, input_names, output_names, **identify_kwargs)
-            h = auto_horizon(mdl.A, len(yv)) if horizon == "auto" else horizon
-            fit = mdl.fit(uv, yv, horizon=h)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                mf = float(np.nanmean(fit))
-            out.append(MethodResult(meth, fit, mf, mdl.spectral_radius, mdl.is_stable, h, mdl))
-        except DataError:
-            raise
-        except Exception as exc:  # one failing method must not hide the others
-            out.append(MethodResult(meth, None, math.nan, math.nan, False, None, None, str(exc)))
+    with identification_memo():  # the methods share the operating point and SIPPY's projections (exact)
+        for meth in methods:
+            try:
+                mdl = identify(ue, ye, order, meth, fs_hz, input_names, output_names, **identify_kwargs)
+                h = auto_horizon(mdl.A, len(yv)) if horizon == "auto" else horizon
+                fit = mdl.fit(uv, yv, horizon=h)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    mf = float(np.nanmean(fit))
+                out.append(MethodResult(meth, fit, mf, mdl.spectral_radius, mdl.is_stable, h, mdl))
+            except DataError:
+                raise
+            except Exception as exc:  # one failing method must not hide the others
+                out.append(MethodResult(meth, None, math.nan, math.nan, False, None, None, str(exc)))
     return out
 
 

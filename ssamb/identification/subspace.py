@@ -11,6 +11,7 @@ import numpy as np
 
 from ..io import DataError
 from .data import FS_HZ_DEFAULT, _as_2d, check_io_data, data_hash, input_excitation
+from .memo import identification_memo, memoised
 from .model import (
     IdentifiedModel,
     _obs_regressors,
@@ -232,12 +233,13 @@ def identify(u, y, order: int, method: str = "N4SID", fs_hz: float = FS_HZ_DEFAU
         raise ValueError(f"fs_hz must be positive (got {fs_hz})")
     order, ss_f, ss_p = int(order), int(ss_f), int(ss_p)
     u, y, input_names, output_names = check_io_data(u, y, input_names, output_names, ss_f, ss_p, order)
-    u_bar, y_bar = _operating_point(u, y, affine, ss_p)
-    exc = input_excitation(u, input_names, hankel_rows=ss_f)
-    T = _input_directions(exc, input_directions, input_rank_tol, u.shape[1], input_names)
-    u_id = (u - u_bar) if T is None else (u - u_bar) @ T.T
-    A, B_id, C, D_id, K, log = _run_sippy(u_id, y - y_bar, order, method, ss_f, ss_p, D_required,
-                                          A_stability, PK_B_reval, 1.0 / float(fs_hz))
+    with identification_memo():  # exact reuse across identifications of the same data (memo module)
+        u_bar, y_bar = memoised("operating_point", _operating_point, u, y, affine, ss_p)
+        exc = memoised("input_excitation", input_excitation, u, input_names, hankel_rows=ss_f)
+        T = _input_directions(exc, input_directions, input_rank_tol, u.shape[1], input_names)
+        u_id = (u - u_bar) if T is None else (u - u_bar) @ T.T
+        A, B_id, C, D_id, K, log = _run_sippy(u_id, y - y_bar, order, method, ss_f, ss_p, D_required,
+                                              A_stability, PK_B_reval, 1.0 / float(fs_hz))
     B, D = (B_id, D_id) if T is None else (B_id @ T, D_id @ T)
     # exact fold-back of the offsets: x+ = A x + B (u - u_bar), y = C x + D (u - u_bar) + y_bar
     b1, d1 = -B @ u_bar, y_bar - D @ u_bar
