@@ -9,7 +9,14 @@ every other run to ``results/runs/<name>/`` (the run *prefix* ``runs/<name>/``).
 * the named scenarios of config ``scenarios`` (``name -> {dotted key: value}``), e.g. ``paper``;
 * the assumption study of config ``study`` (:func:`study_variants`): a ``study-baseline`` run
   with the study's common overrides, one run per assumption value (one at a time) and one per
-  value pair of the listed assumption pairs.
+  value pair of the listed assumption pairs;
+* the noise ensembles of config ``ensemble`` (:func:`ensemble_runs`): realisation ``k`` of a
+  chain (the default run or a named scenario) is the run ``<chain>.r<k>``, the chain with the
+  master ``seed`` moved by ``k`` (another draw of the converter noise, the excitation phases
+  and the calibration noise); realisation 0 is the chain itself;
+* the ceiling runs (:func:`ceiling_runs`): ``ceiling.r<k>`` repeats the default run's
+  experiments with only the converter noise drawn anew (``converters.seed_offset`` moved by
+  ``k``): nonlinear against nonlinear, the fit no model can exceed.
 
 Sharing
 -------
@@ -29,8 +36,9 @@ from typing import Any, Callable, Mapping
 from .channels import SUBSYSTEMS
 from .config import ConfigError, apply_overrides, get
 
-__all__ = ["SIM_SECTIONS", "sim_config", "identification_config", "study_variants", "run_overrides", "run_configs",
-           "Plan", "CHAIN", "run_prefix"]
+__all__ = ["SIM_SECTIONS", "sim_config", "identification_config", "study_variants", "ensemble_runs", "ensemble_chains",
+           "ceiling_runs", "realisation_name", "default_scenarios", "run_overrides", "run_configs", "Plan", "CHAIN",
+           "run_prefix"]
 
 #: config sections the nonlinear simulator depends on (all physics, no analysis settings)
 SIM_SECTIONS = ("seed", "table1", "geometry", "gravity_m_per_s2", "weight_share", "magnetics", "amplifier",
@@ -90,12 +98,81 @@ def study_variants(config: Mapping) -> dict[str, dict]:
     return out
 
 
-def run_overrides(config: Mapping, study: bool = True) -> dict[str, dict]:
-    """``run name -> overrides`` of every run: ``""`` (default), the scenarios, the study."""
+#: name of the default run among the chains of config ``ensemble.runs``
+DEFAULT_CHAIN = "default"
+
+
+def realisation_name(chain: str, k: int) -> str:
+    """Run name of realisation ``k`` of a chain (``default`` or a scenario): ``<chain>.r<k>``."""
+    return f"{chain}.r{int(k)}"
+
+
+def ensemble_chains(config: Mapping) -> list[str]:
+    """The chains of config ``ensemble.runs`` (``default`` and scenario names), checked."""
+    ens = config.get("ensemble") or {}
+    chains = [str(c) for c in ens.get("runs") or []]
+    scen = config.get("scenarios") or {}
+    if DEFAULT_CHAIN in scen:
+        raise ConfigError(f"scenario name '{DEFAULT_CHAIN}': reserved for the default run (config ensemble.runs)")
+    bad = [c for c in chains if c != DEFAULT_CHAIN and c not in scen]
+    if bad:
+        raise ConfigError(f"config key 'ensemble.runs': {bad} not '{DEFAULT_CHAIN}' nor a scenario of config 'scenarios'")
+    return chains
+
+
+def ensemble_runs(config: Mapping) -> dict[str, dict]:
+    """``run name -> overrides`` of the noise ensembles (config ``ensemble``).
+
+    For each chain of ``ensemble.runs`` and ``k = 0 .. realisations - 1`` the run
+    :func:`realisation_name` ``(chain, k)``: the chain's own overrides and, for ``k > 0``, the
+    ensemble's common ``overrides`` (evidence only realisation 0 needs to report) and
+    ``seed = seed + k`` -- every random signal derives from the master seed, so this is an
+    independent draw of the converter noise, the excitation phases and the calibration noise.
+    Realisation 0 has exactly the chain's config, so every stage of it is the chain's own.
+    """
+    ens = config.get("ensemble") or {}
+    K = int(ens.get("realisations", 0))
+    common = dict(ens.get("overrides") or {})
+    scen = config.get("scenarios") or {}
+    out = {}
+    for chain in ensemble_chains(config):
+        own = {} if chain == DEFAULT_CHAIN else dict(scen[chain] or {})
+        for k in range(K):
+            out[realisation_name(chain, k)] = dict(own) if k == 0 else {**own, **common,
+                                                                           "seed": int(config["seed"]) + k}
+    return out
+
+
+def ceiling_runs(config: Mapping) -> dict[str, dict]:
+    """``run name -> overrides`` of the ceiling runs: ``ceiling.r<k>``, ``k = 1 .. realisations - 1``,
+    the default run's experiments with ``converters.seed_offset`` moved by ``k`` (only the
+    converter noise differs: the same excitation and rig, another run of it)."""
+    K = int((config.get("ensemble") or {}).get("realisations", 0))
+    off = int(config["converters"]["seed_offset"])
+    return {realisation_name("ceiling", k): {"converters.seed_offset": off + k} for k in range(1, K)}
+
+
+def default_scenarios(config: Mapping) -> list[str]:
+    """The scenarios the default target runs: config ``default_scenarios`` (every scenario when
+    the key is absent), each checked to be a scenario of config ``scenarios``."""
+    scen = list(config.get("scenarios") or {})
+    names = [str(n) for n in config.get("default_scenarios", scen)]
+    bad = [n for n in names if n not in scen]
+    if bad:
+        raise ConfigError(f"config key 'default_scenarios': {bad} not a scenario of config 'scenarios'")
+    return names
+
+
+def run_overrides(config: Mapping, study: bool = True, ensemble: bool = True) -> dict[str, dict]:
+    """``run name -> overrides`` of every run: ``""`` (default), the scenarios, the study, the
+    noise ensembles and the ceiling runs."""
     runs = {"": {}}
     runs.update({str(k): dict(v or {}) for k, v in (config.get("scenarios") or {}).items()})
     if study:
         runs.update(study_variants(config))
+    if ensemble:
+        runs.update(ensemble_runs(config))
+        runs.update(ceiling_runs(config))
     bad = [n for n in runs if n and not _NAME.match(n)]
     if bad:
         raise ConfigError(f"run names {bad}: use letters, digits and _.=+- only")
@@ -107,10 +184,10 @@ def run_prefix(name: str) -> str:
     return f"runs/{name}/" if name else ""
 
 
-def run_configs(config: Mapping, study: bool = True) -> dict[str, dict]:
+def run_configs(config: Mapping, study: bool = True, ensemble: bool = True) -> dict[str, dict]:
     """``run prefix -> config`` of every run (each override must name an existing key)."""
     out = {}
-    for name, ov in run_overrides(config, study).items():
+    for name, ov in run_overrides(config, study, ensemble).items():
         try:
             out[run_prefix(name)] = apply_overrides(config, ov)
         except ConfigError as exc:

@@ -76,7 +76,8 @@ def test_every_section_builds_with_consistent_tables_and_stage_images(ctx):
 def test_comparison_quotes_the_paper_and_reads_ours(ctx):
     tab = sections.comparison(ctx).tables()[0]
     fit_y = next(r for r in tab.rows if r[0].startswith("closed-loop LTI fit, y"))
-    assert fit_y[1] == "50.76 %" and len(fit_y) == 5
+    assert tab.header[:3] == ["quantity", "paper", "ours"] and tab.header[-1] == "why (computed)"
+    assert fit_y[1] == "50.76 %" and len(fit_y) == len(tab.header)
     assert fit_y[2] == f"{ctx.summary['fit_pct']['y']:.4g} %"
 
 

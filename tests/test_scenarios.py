@@ -25,6 +25,8 @@ def cfg():
                   "assumptions": {"bias": {"key": "table1.i_bias_a", "values": [2.5, 3.5]},
                                   "law": {"key": "experiments.sweep.excitation.law", "values": ["log"]}},
                   "pairs": [["bias", "law"]], "criteria": c["study"]["criteria"]}
+    c["default_scenarios"] = ["slow_sweep"]
+    c["ensemble"]["runs"] = ["default"]
     return c
 
 

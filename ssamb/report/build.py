@@ -20,20 +20,22 @@ __all__ = ["make_notebook", "render_notebook", "build_report"]
 
 
 def make_notebook(results_dir: str | Path, config_path: str | Path, closeloop_dir: str | Path | None = None,
-                  study_json: str | Path | None = None, sections: Sequence[str] = ORDER) -> nbformat.NotebookNode:
+                  study_json: str | Path | None = None, sections: Sequence[str] = ORDER,
+                  ensemble_json: str | Path | None = None) -> nbformat.NotebookNode:
     """The report notebook: a setup cell (the :class:`~ssamb.report.context.Context`) and one cell
     per section name."""
     nb = new_notebook()
     nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
     cl = None if closeloop_dir is None else str(Path(closeloop_dir).resolve())
     st = None if study_json is None else str(Path(study_json).resolve())
+    en = None if ensemble_json is None else str(Path(ensemble_json).resolve())
     nb.cells.append(new_code_cell(
         "import warnings\nimport matplotlib\nmatplotlib.use('Agg')\nimport matplotlib.pyplot as plt\n"
         "from ssamb.report import sections\nfrom ssamb.report.context import load_context\n"
         "from ssamb.report.render import show\nwarnings.filterwarnings('ignore')\n"
         "plt.rcParams.update({'figure.dpi': 110, 'axes.grid': True})\n"
         f"ctx = load_context({str(Path(results_dir).resolve())!r}, {str(Path(config_path).resolve())!r}, {cl!r}, "
-        f"{st!r})"))
+        f"{st!r}, {en!r})"))
     for name in sections:
         nb.cells.append(new_code_cell(f"sec = sections.{name}(ctx)\nif sec is not None:\n    show(sec)"))
     return nb
@@ -61,7 +63,8 @@ def render_notebook(nb: nbformat.NotebookNode, out_html: str | Path, timeout_s: 
 
 def build_report(results_dir: str | Path, out_html: str | Path, out_ipynb: str | Path | None = None,
                  config_path: str | Path = "config.yaml", closeloop_dir: str | Path | None = None,
-                 study_json: str | Path | None = None, timeout_s: int = 600) -> None:
+                 study_json: str | Path | None = None, timeout_s: int = 600,
+                 ensemble_json: str | Path | None = None) -> None:
     """Build the full report from a results folder.
 
     Parameters
@@ -80,6 +83,8 @@ def build_report(results_dir: str | Path, out_html: str | Path, out_ipynb: str |
         The assumption study (``results/study/study.json``), when it has run.
     timeout_s : int
         Longest a section's cell may run.
+    ensemble_json : path, optional
+        The noise ensembles (``results/ensemble/ensemble.json``), when they have run.
 
     Examples
     --------
@@ -87,5 +92,5 @@ def build_report(results_dir: str | Path, out_html: str | Path, out_ipynb: str |
     >>> build_report("results", "results/report.html", config_path="config.yaml",
     ...              closeloop_dir="results/closeloop/rig_demo")
     """
-    render_notebook(make_notebook(results_dir, config_path, closeloop_dir, study_json), out_html,
-                    timeout_s=timeout_s, out_ipynb=out_ipynb)
+    render_notebook(make_notebook(results_dir, config_path, closeloop_dir, study_json, ensemble_json=ensemble_json),
+                    out_html, timeout_s=timeout_s, out_ipynb=out_ipynb)

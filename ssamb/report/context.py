@@ -29,6 +29,8 @@ class Context:
         The analysis folder of the default close-the-loop data set.
     study : dict or None
         The assumption study (``results/study/study.json``), when the report holds it.
+    ensemble : dict or None
+        The noise ensembles (``results/ensemble/ensemble.json``), when the report holds them.
     """
 
     results: Path
@@ -37,18 +39,20 @@ class Context:
     config_path: Path
     closeloop_dir: Path | None = None
     study: Mapping[str, Any] | None = None
+    ensemble: Mapping[str, Any] | None = None
 
     def path(self, *parts: str) -> Path:
         return self.results.joinpath(*parts)
 
 
 def load_context(results: str | Path, config_path: str | Path, closeloop_dir: str | Path | None = None,
-                 study_json: str | Path | None = None) -> Context:
+                 study_json: str | Path | None = None, ensemble_json: str | Path | None = None) -> Context:
     """The :class:`Context` of a results folder (``summary.json`` must exist)."""
     results = Path(results).resolve()
     return Context(results, read_json(results / "summary.json"), load_config(config_path),
                    Path(config_path).resolve(), None if closeloop_dir is None else Path(closeloop_dir).resolve(),
-                   None if study_json is None else read_json(study_json))
+                   None if study_json is None else read_json(study_json),
+                   None if ensemble_json is None else read_json(ensemble_json))
 
 
 def experiment(ctx: Context, key: str) -> Mapping[str, Any]:

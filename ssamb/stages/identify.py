@@ -19,6 +19,7 @@ import numpy as np
 
 from ..channels import VARIANTS
 from ..identification import identify, order_scan, subsystem_io
+from ..identification.memo import identification_memo
 from ..identification.selection import compare_and_select, model_summary
 from ..io import DataError, write_json
 from ..model_io import load_record, save_failed, save_model
@@ -98,7 +99,7 @@ def _loop_candidates(est, sel, subsystem: str, variant: str, order: int, params:
     settings = candidate_settings(params["loop_selection"], subsystem)
     cands = identify_candidates(est.u, est.y, subsystem, order, settings, fs, est.input_names, est.output_names,
                                 input_directions=structure(subsystem, variant).input_directions, known=known,
-                                progress=True)
+                                progress=True, affine=bool(params.get("affine", True)))
     save_candidates(out_candidates, subsystem, cands)
     return {"n": len(cands), "candidates": [c.as_dict() for c in cands]}
 
@@ -132,16 +133,17 @@ def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsyst
     sub = dict(params[subsystem])
     variant = sub.get(key, ours)
     order = int(sub["order"])
-    kw = {"ss_f": int(params["ss_f"]), "ss_p": int(params["ss_p"])}
+    kw = {"ss_f": int(params["ss_f"]), "ss_p": int(params["ss_p"]), "affine": bool(params.get("affine", True))}
     (est, fs), (val, _) = _load_io(estimation_npz, subsystem, variant), _load_io(validation_npz, subsystem, variant)
-    sel = compare_and_select(est, val, subsystem, variant, order, tuple(params["methods"]), fs, **kw)
-    scan = _order_scan(est, val, params["order_scan"], sel, fs, kw)
-    other = paper if variant != paper else ours
-    variant_info = _paper_variant(estimation_npz, validation_npz, subsystem, other, order, sel.method, kw,
-                                  out_variant)
-    loop_cands = None
-    if out_candidates is not None:
-        loop_cands = _loop_candidates(est, sel, subsystem, variant, order, params, fs, out_candidates)
+    with identification_memo():  # the identifications below share their common work (exact)
+        sel = compare_and_select(est, val, subsystem, variant, order, tuple(params["methods"]), fs, **kw)
+        loop_cands = None
+        if out_candidates is not None:
+            loop_cands = _loop_candidates(est, sel, subsystem, variant, order, params, fs, out_candidates)
+        scan = _order_scan(est, val, params["order_scan"], sel, fs, kw)
+        other = paper if variant != paper else ours
+        variant_info = _paper_variant(estimation_npz, validation_npz, subsystem, other, order, sel.method, kw,
+                                      out_variant)
     save_model(out_model, sel.model)
     info = {"subsystem": subsystem, "variant": {key: variant}, "paper_variant": variant_info,
             "loop_candidates": loop_cands,

@@ -9,6 +9,13 @@ Every value is read from a stage output; nothing is typed in. Keys (stable; docs
 the computed cause of its μ peak); ``sensitivity`` (the assumption study, once it has run);
 ``failed`` (stage -> reason, for a run whose stage failed). ``details`` carries what the report
 needs.
+
+With the noise ensembles (:mod:`ssamb.stages.ensemble`): ``ceiling`` (the Fig. 4 fits no model
+can exceed, per axis ``K``, ``median``, ``min``, ``max``: in the default run); once
+``snakemake ensemble`` has run, ``ensemble`` (per headline quantity of the default chain ``K``,
+``median``, ``min``, ``max``, ``ceiling`` for fits; per yes/no outcome its ``fraction``) and,
+for each other chain, its entry (``paper_way``, ``paper_literal``, ``paper_rig``: the keys of
+``paper_way`` from realisation 0, with ``stable_fraction`` and the chain's ``ensemble``).
 """
 from __future__ import annotations
 
@@ -17,7 +24,7 @@ from typing import Mapping, Sequence
 
 from ..io import read_json, write_json
 
-__all__ = ["build_summary", "write_summary", "headline"]
+__all__ = ["build_summary", "write_summary", "headline", "ensemble_entries", "ensemble_stats", "first_failure"]
 
 
 class _Inputs:
@@ -86,9 +93,10 @@ def build_summary(assemble_json: str | Path, evidence_jsons: Mapping[str, str | 
                   baseline_json: str | Path, validation_json: str | Path,
                   closeloop_json: str | Path | None = None, sim_metas: Sequence[str | Path] = (),
                   closeloop_all: Mapping[str, str | Path] | None = None, paper_json: str | Path | None = None,
-                  study_json: str | Path | None = None, selection_json: str | Path | None = None) -> dict:
-    """Collect one run's stage outputs (and, for the default run, the paper's-way run's summary and
-    the study) into the summary dictionary."""
+                  study_json: str | Path | None = None, selection_json: str | Path | None = None,
+                  ceiling_json: str | Path | None = None, ensemble_json: str | Path | None = None) -> dict:
+    """Collect one run's stage outputs (and, for the default run, the paper's-way run's summary,
+    the study, the ceiling and the noise ensembles) into the summary dictionary."""
     r = _Inputs()
     asm = r.read(assemble_json, "assemble")
     ev = {k: r.read(v, f"identify/{k}") for k, v in evidence_jsons.items()}
@@ -101,6 +109,12 @@ def build_summary(assemble_json: str | Path, evidence_jsons: Mapping[str, str | 
         summary["paper_way"] = paper_way(read_json(paper_json))
     if study_json is not None:
         summary["sensitivity"] = read_json(study_json).get("sensitivity")
+    if ceiling_json is not None:
+        ch = read_json(ceiling_json)["channels"]
+        summary["ceiling"] = {k: {s2: ch[c][s2] for s2 in ("K", "median", "min", "max")}
+                              for k, c in (("fit_x_pct", "x_meas"), ("fit_y_pct", "y_meas")) if c in ch}
+    if ensemble_json is not None:
+        summary.update(ensemble_entries(read_json(ensemble_json), summary.get("paper_way")))
     summary["failed"] = r.failed
     summary["details"] = _details(asm, ev, unc, mu, base, val)
     summary["details"]["selection"] = _selection(r.read(selection_json, "select"))
@@ -118,6 +132,18 @@ def _selection(sel: Mapping | None) -> dict | None:
     return {k: sel.get(k) for k in keep if k in sel}
 
 
+def first_failure(failed: Mapping[str, str] | None) -> dict | None:
+    """The failure the others follow from: ``{"stage", "reason"}`` of the entry whose reason does
+    not report an upstream stage's failure (the first one when all do); None without failures."""
+    if not failed:
+        return None
+    # a stage that failed because it read a failure marker says "Failed: <file>: stage ... failed"
+    roots = [(k, v) for k, v in failed.items() if "Failed: " not in v]
+    stage, reason = (roots or list(failed.items()))[0]
+    prefix = stage.split("/")[0] + ": "
+    return {"stage": stage, "reason": reason[len(prefix):] if reason.startswith(prefix) else reason}
+
+
 def paper_way(s: Mapping) -> dict:
     """The ``paper_way`` entry from the paper's-way run's summary: its headline keys, the
     assembled loop's stability and the computed cause of its self-sensing μ peak."""
@@ -125,11 +151,41 @@ def paper_way(s: Mapping) -> dict:
             "iso14839_peak_sensitivity", "failed")
     asm = (s.get("details") or {}).get("assembly") or {}
     mu_ss = (s.get("mu") or {}).get("selfsensing") or {}
-    return {**{k: s.get(k) for k in keys}, "stable": asm.get("stable"),
+    return {**{k: s.get(k) for k in keys}, "failure": first_failure(s.get("failed")), "stable": asm.get("stable"),
             "spectral_radius": asm.get("spectral_radius"), "mu_peak_cause": mu_ss.get("cause"),
             "structure": asm.get("subsystem_inputs"),
             "selection": (s.get("details") or {}).get("selection"),
             "identification": (s.get("details") or {}).get("identification")}
+
+
+def ensemble_stats(chain: Mapping) -> dict:
+    """A chain of ``ensemble.json`` as in ``summary.json``: per quantity ``K``, ``median``,
+    ``min``, ``max`` (and ``ceiling`` for fits), per yes/no outcome ``K`` and ``fraction``."""
+    out = {k: {s: q[s] for s in ("K", "median", "min", "max", "ceiling") if s in q}
+           for k, q in chain["quantities"].items()}
+    out.update({k: {"K": f["K"], "fraction": f["fraction"]} for k, f in chain["fractions"].items()})
+    return out
+
+
+#: summary.json key of each ensemble chain other than the default
+CHAIN_KEYS = {"paper": "paper_way"}
+
+
+def ensemble_entries(ens: Mapping, paper_way_entry: Mapping | None = None) -> dict:
+    """``ensemble`` (the default chain) and one entry per other chain (``paper_way``,
+    ``paper_literal``, ``paper_rig``, ...: realisation 0's :func:`paper_way` keys with
+    ``stable_fraction`` and ``ensemble``) from ``ensemble.json``."""
+    out = {}
+    for name, chain in ens["chains"].items():
+        stats = ensemble_stats(chain)
+        if name == "default":
+            out["ensemble"] = {**stats, "K_realisations": chain["realisations"]}
+            continue
+        key = CHAIN_KEYS.get(name, name)
+        base = dict(paper_way_entry) if key == "paper_way" and paper_way_entry else dict(chain["realisation_0"])
+        out[key] = {**base, "stable_fraction": chain["fractions"]["stable"]["fraction"], "ensemble": stats,
+                    "first_failures": chain["failures"]}
+    return out
 
 
 def _sim_brief(meta: Mapping) -> dict:

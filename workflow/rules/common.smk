@@ -15,7 +15,8 @@ from ssamb.config import ConfigError, read_yaml_mapping, validate_config
 from ssamb.device import get_device
 from ssamb.errors import InputError
 from ssamb.stages import check_closeloop_settings
-from ssamb.scenarios import Plan, identification_config, run_configs, run_prefix, sim_config as _sim_config, study_variants
+from ssamb.scenarios import (Plan, ceiling_runs, default_scenarios, ensemble_chains, identification_config,
+                             realisation_name, run_configs, run_prefix, sim_config as _sim_config, study_variants)
 
 def _patch_list_params_changes():
     """``snakemake --list-changes params`` lists, in Snakemake 9 (9.27.1 included), the last
@@ -97,13 +98,19 @@ try:
             validate_config(_cfg)
         except ConfigError as _err:
             raise ConfigError(f"run '{_run.removeprefix('runs/').rstrip('/') or 'default'}': {_err}") from None
+
+    #: run prefixes of the scenarios the default target runs
+    SCENARIO_RUNS = [run_prefix(n) for n in default_scenarios(config)]
+    #: chain -> run prefixes of its realisations (the noise ensembles, config `ensemble`)
+    ENSEMBLE_RUNS = {c: [run_prefix(realisation_name(c, k)) for k in range(int(config["ensemble"]["realisations"]))]
+                     for c in ensemble_chains(config)} if config.get("ensemble") else {}
 except ConfigError as _err:
     _stop(_err)
 
 PLAN = Plan(RUN_CONFIGS)
-#: run prefixes of the named scenarios and of the study
-SCENARIO_RUNS = [run_prefix(n) for n in (config.get("scenarios") or {})]
 STUDY_RUNS = [run_prefix(n) for n in study_variants(config)]
+#: run prefixes of the ceiling runs (the default run's experiments, converter noise drawn anew)
+CEILING_RUNS = [run_prefix(n) for n in ceiling_runs(config)]
 #: experiments of the default run
 SIM_EXPERIMENTS = list(config["experiments"])
 

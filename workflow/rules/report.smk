@@ -38,6 +38,10 @@ def summary_inputs(wc):
             files["paper"] = "results/runs/paper/summary.json"
         if os.path.exists("results/study/study.json"):  # optional: after `snakemake study`
             files["study"] = "results/study/study.json"
+        if CEILING_RUNS:  # the cheap part of the ensembles: the ceiling of the Fig. 4 fits
+            files["ceiling"] = "results/ceiling/fig4.json"
+        if os.path.exists("results/ensemble/ensemble.json"):  # optional: after `snakemake ensemble`
+            files["ensemble"] = "results/ensemble/ensemble.json"
     return files
 
 
@@ -61,8 +65,11 @@ def report_inputs(wc):
     files = {"summary": "results/summary.json", "config_file": workflow.configfiles[0] if workflow.configfiles else "config.yaml",
              "figures": [f"results/{p}" for p in REPORT_FIGURES],
              "rigs": expand("results/rigs/{rig}/closeloop.json", rig=CLOSELOOP_RIGS)}
-    if wc.which or os.path.exists("results/study/study.json"):  # the default report too, once the study ran
+    # results/<which>report.html holds the study or the ensemble; every report holds them once they ran
+    if wc.which == "study/" or os.path.exists("results/study/study.json"):
         files["study"] = "results/study/study.json"
+    if wc.which == "ensemble/" or os.path.exists("results/ensemble/ensemble.json"):
+        files["ensemble"] = "results/ensemble/ensemble.json"
     return files
 
 
@@ -76,7 +83,8 @@ REPORT_FIGURES = (["model/fig4.png", "validation/fig9.png", "sim/levitate.npz"]
 
 rule report:
     """Build the notebook from results/, execute it and render the HTML report (nbconvert);
-    results/study/report.html also holds the assumption study."""
+    results/study/report.html also holds the assumption study, results/ensemble/report.html the
+    noise ensembles."""
     input:
         unpack(report_inputs),
     output:
@@ -89,7 +97,7 @@ rule report:
     benchmark:
         "results/{which}benchmarks/report.tsv"
     wildcard_constraints:
-        which="(study/)?",
+        which="(study/|ensemble/)?",
     resources:
         mem_mb=3000,
         runtime=15,

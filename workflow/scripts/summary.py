@@ -20,5 +20,7 @@ with job_log(snakemake.log[0], "summary"):  # noqa: F821
         sim_metas=list(inp.sims),
         paper_json=inp.get("paper"),
         study_json=inp.get("study"),
+        ceiling_json=inp.get("ceiling"),
+        ensemble_json=inp.get("ensemble"),
         selection_json=inp.get("selection"),
     )

@@ -1,0 +1,12 @@
+"""Snakemake script: gather the noise ensembles (ssamb.stages.ensemble.collect_ensemble)."""
+import sys
+
+from ssamb.stages.ensemble import collect_ensemble
+
+with open(snakemake.log[0], "w") as log:  # noqa: F821
+    sys.stderr = sys.stdout = log
+    inp, par = snakemake.input, snakemake.params  # noqa: F821
+    chains = {c: [(r.strip("/").split("/", 1)[1], f"results/{r}summary.json") for r in runs]
+              for c, runs in par.chains.items()}
+    collect_ensemble(chains, {"fig4": inp.fig4, "validation": inp.validation}, par.criteria,
+                     snakemake.output.json, snakemake.output.fig)  # noqa: F821
