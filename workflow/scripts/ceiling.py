@@ -1,8 +1,7 @@
 """Snakemake script: the ceiling of the fits over repeated runs (ssamb.stages.ensemble.run_ceiling)."""
-import sys
 
+from ssamb.stages import job_log
 from ssamb.stages.ensemble import run_ceiling
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stderr = sys.stdout = log
+with job_log(snakemake.log[0], "ceiling"):  # noqa: F821
     run_ceiling(list(snakemake.input.records), snakemake.params.channels, snakemake.output.json)  # noqa: F821

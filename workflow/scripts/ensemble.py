@@ -1,10 +1,9 @@
 """Snakemake script: gather the noise ensembles (ssamb.stages.ensemble.collect_ensemble)."""
-import sys
 
+from ssamb.stages import job_log
 from ssamb.stages.ensemble import collect_ensemble
 
-with open(snakemake.log[0], "w") as log:  # noqa: F821
-    sys.stderr = sys.stdout = log
+with job_log(snakemake.log[0], "ensemble"):  # noqa: F821
     inp, par = snakemake.input, snakemake.params  # noqa: F821
     chains = {c: [(r.strip("/").split("/", 1)[1], f"results/{r}summary.json") for r in runs]
               for c, runs in par.chains.items()}
