@@ -8,7 +8,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-import control
 import numpy as np
 
 from .identification import IdentifiedModel
@@ -172,6 +171,8 @@ def load_statespace(path: str | Path) -> control.StateSpace:
     """Read a system written by :func:`save_statespace`."""
     arrays, meta = load_record(path)
     dt = meta.get("dt", 0.0) or 0
+    import control  # imported where needed: a job that never reads a state-space model does not pay for it
+
     return control.ss(arrays["A"], arrays["B"], arrays["C"], arrays["D"], dt,
                       inputs=meta["inputs"], outputs=meta["outputs"], name=meta.get("name", "sys"))
 
@@ -185,6 +186,8 @@ def save_weight(path: str | Path, gain: float, zeros_hz, poles_hz, meta: Mapping
 def load_weight(path: str | Path) -> control.TransferFunction:
     r"""Rebuild :math:`W(s) = K \prod(1 + s/\omega_z)/\prod(1 + s/\omega_p)` from a weight file."""
     arrays, _ = load_record(path)
+    import control
+
     s = control.tf("s")
     w = control.tf([float(arrays["gain"])], [1.0])
     for fz in np.atleast_1d(arrays["zeros_hz"]):

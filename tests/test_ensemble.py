@@ -143,3 +143,60 @@ def test_summary_entries_of_the_ensembles():
     assert out["ensemble"]["stable"] == {"K": 2, "fraction": 1.0}
     assert out["paper_literal"]["stable_fraction"] == 1.0 and out["paper_literal"]["stable"] is False
     assert math.isclose(out["paper_literal"]["ensemble"]["fit_x_pct"]["median"], 90.0)
+
+
+def test_collect_and_the_report_sections(tmp_path):
+    """collect_ensemble over constructed realisations: the JSON, the verdicts with their computed
+    reasons, the figure; the first table and the ensemble section read them."""
+    import json
+
+    from ssamb.report import sections
+    from ssamb.report.compare import comparison_rows
+    from ssamb.report.context import Context
+    from ssamb.stages.ensemble import collect_ensemble
+
+    def summ(fy, stable=True, t_nl=0.185):
+        return {"fit_pct": {"x": 92.0 if stable else None, "y": fy if stable else None}, "subsystem_fit_pct": {"selfsensing": {"y_ss": 60.0}},
+                "weight_fit_max_db": 2.5, "orders": {"plant": 9, "amplifier": 7, "selfsensing": 3},
+                "iso14839_peak_sensitivity": {"x": 1.4, "y": 3.0},
+                "mu": {"selfsensing": {"peak": 800.0, "peak_hz": 2.1, "scale_for_unity": 1 / 800.0,
+                                       "cause": {"cause": "closed-loop pole", "sentence": "a slow pole"}}}
+                if stable else {"selfsensing": None},
+                "delevitation_s": {"nonlinear": t_nl, "nominal_lti": None, "augmented_lti": None},
+                "details": {"assembly": {"stable": stable}, "simulations": {"sweep": {"config_hash": "h"}},
+                            "validation": {"outcomes": [
+                                {"model": "nonlinear", "delevitates": True, "critical_amplitude_m": 9e-5},
+                                {"model": "nominal LTI", "delevitates": False, "critical_amplitude_m": 2e-4},
+                                {"model": "augmented, Delta=plus", "delevitates": False,
+                                 "critical_amplitude_m": 1.5e-4}]} if stable else None},
+                "failed": {} if stable else {"select": "select: no stable assembled loop"}}
+    chains = {}
+    for name, fys in (("default", (40.0, 45.0, 52.0)), ("paper", (None, 55.0, None))):
+        runs = []
+        for k, fy in enumerate(fys):
+            p = tmp_path / f"{name}.r{k}.json"
+            p.write_text(json.dumps(summ(fy if fy is not None else 0.0, stable=fy is not None)))
+            runs.append((f"{name}.r{k}", p))
+        chains[name] = runs
+    ceil = tmp_path / "ceil.json"
+    ceil.write_text(json.dumps({"channels": {"x_meas": {"K": 3, "median": 93.0, "min": 92.5, "max": 93.5},
+                                             "y_meas": {"K": 3, "median": 50.0, "min": 48.0, "max": 52.0}}}))
+    res = collect_ensemble(chains, {"fig4": ceil, "validation": ceil}, CRITERIA, tmp_path / "e.json",
+                           tmp_path / "e.png")
+    assert (tmp_path / "e.png").stat().st_size > 10_000
+    assert res["K"] == 3 and res["chains"]["paper"]["fractions"]["stable"]["count"] == 1
+    # the paper's unstable realisations take the nonlinear numbers of the same simulation
+    assert res["chains"]["paper"]["quantities"]["critical_nonlinear_um"]["K"] == 3
+    assert res["reproduces"]["fit_y"]["chains"] == ["default"]  # 50.76 % inside [40, 52], not [55, 55]
+    assert "inside the ceiling's range" in res["reproduces"]["fit_y"]["why"]
+    assert res["reproduces"]["mu_peak"]["chains"] == ["default", "paper"]
+    S = summ(45.0)
+    header, rows = comparison_rows(S, None, res)
+    assert header[:4] == ["quantity", "paper", "ours (median [min–max])", "ceiling (nonlinear vs nonlinear)"]
+    fit_y = next(r for r in rows if r[0].startswith("closed-loop LTI fit, y"))
+    assert fit_y[2] == "45 % [40–52]" and fit_y[3] == "50 [48–52]"
+    assert fit_y[header.index("the paper's way")] == "55 % [55–55] (1/3)"
+    ctx = Context(tmp_path, S, {}, tmp_path / "config.yaml", ensemble=res)
+    sec = sections.ensemble(ctx)
+    assert len(sec.tables()) == 4 and "no stable assembled loop" in str(sec.tables()[2].rows)
+

@@ -122,3 +122,38 @@ def test_study_answers_follow_the_configured_criteria():
     tight = answers({"v": q}, {"mu_peak_factor": 1.5, "fit_y_points": 5.0})
     assert loose == {"delevitation": ["v"], "mu_peak_near_2hz": ["v"], "fit_y_near_paper": ["v"]}
     assert tight == {"delevitation": ["v"], "mu_peak_near_2hz": [], "fit_y_near_paper": []}
+
+
+def test_the_study_against_the_noise(tmp_path, cfg):
+    """With the ensembles, a variant moves a headline only beyond the noise band around the
+    baseline, and the answers widen each criterion by the variant's own band."""
+    from ssamb.stages.study import answers, noise_bands
+
+    spread = {"fit_y_pct": {"K": 8, "median": 40.0, "min": 35.0, "max": 48.0},
+              "mu_peak_hz": {"K": 8, "median": 100.0, "min": 50.0, "max": 200.0}}
+    ens = {"chains": {"default": {"quantities": spread}}}
+    nb = noise_bands({"fit_y_pct": 30.0, "mu_peak_hz": 10.0}, ens)
+    assert (nb["fit_y_pct"]["lo"], nb["fit_y_pct"]["hi"]) == (25.0, 38.0)
+    assert (nb["mu_peak_hz"]["lo"], nb["mu_peak_hz"]["hi"]) == (5.0, 20.0)  # log scale: ratios
+    assert noise_bands({"fit_y_pct": 30.0}, None) == {}
+    q = {"delevitation_nonlinear_s": None, "delevitation_nominal_lti_s": None, "delevitation_augmented_lti_s": None,
+         "mu_peak_hz": 5.0, "fit_y_pct": 43.0}
+    crit = {"mu_peak_factor": 1.5, "fit_y_points": 0.0}
+    # 43 % with a noise band of [38, 51] reaches 50.76 %; a 5 Hz peak with [2.5, 10] reaches 2 Hz x 1.5
+    assert answers({"v": q}, crit, ens) == {"delevitation": [], "mu_peak_near_2hz": ["v"], "fit_y_near_paper": ["v"]}
+    assert answers({"v": q}, crit) == {"delevitation": [], "mu_peak_near_2hz": [], "fit_y_near_paper": []}
+    ok = {"fit_pct": {"x": 97.0, "y": 30.0}, "mu": {"selfsensing": {"peak": 0.3, "peak_hz": 10.0, "scale_for_unity": 3.3}},
+          "delevitation_s": {}, "details": {"assembly": {"stable": True}}, "failed": {}}
+    inside = {**ok, "fit_pct": {"x": 97.0, "y": 36.0}}
+    beyond = {**ok, "fit_pct": {"x": 97.0, "y": 45.0}}
+    runs = ["runs/study-baseline/", "runs/study-bias=2.5/", "runs/study-bias=3.5/"]
+    paths = []
+    for r, s in zip(runs, (ok, inside, beyond)):
+        p = tmp_path / r / "summary.json"
+        p.parent.mkdir(parents=True)
+        p.write_text(json.dumps(s))
+        paths.append(p)
+    (tmp_path / "ensemble.json").write_text(json.dumps(ens))
+    res = collect_study(cfg["study"], runs, paths, tmp_path / "study.json", ensemble_json=tmp_path / "ensemble.json")
+    assert res["variants"]["study-bias=2.5"]["beyond_noise"]["fit_y_pct"] is False
+    assert res["variants"]["study-bias=3.5"]["beyond_noise"]["fit_y_pct"] is True

@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
-import scipy.signal
 
 from ..channels import ONE
 from .data import _as_2d, nrmse_fit
@@ -25,6 +24,8 @@ def _simulate(A, B, C, D, w, x0):
     N = w.shape[0]
     if n == 0:
         return np.zeros((N, 0)), w @ D.T
+    import scipy.signal  # imported where needed (python-control and scipy.signal are slow to import)
+
     with np.errstate(all="ignore"):
         _, yout, xout = scipy.signal.dlsim((A, B, C, D, 1.0), w, x0=np.asarray(x0, float))
     return np.asarray(xout).reshape(N, n), np.asarray(yout).reshape(N, C.shape[0])
@@ -292,6 +293,8 @@ class IdentifiedModel:
             for i in range(1, k):
                 taps[i] = M @ B
                 M = M @ A
+            import scipy.signal
+
             fir = scipy.signal.fftconvolve(w[:, None, :], taps, axes=0)[:N].sum(axis=2)
             yhat[k - 1:] = xp[: N - k + 1] @ M.T + fir[k - 1:] + w[k - 1:] @ D.T
         return yhat

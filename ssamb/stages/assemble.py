@@ -21,7 +21,7 @@ import numpy as np
 from ..channels import CL_OUTPUTS
 from ..closed_loop import assemble_closed_loop, d2c_summary, replay_from_operating_point, stability
 from ..identification import nrmse_fit
-from ..io import write_json
+from ..io import load_npz, write_json
 from ..model_io import Failed, load_model, load_record, save_statespace
 from ..sim.controller import pid_discrete
 
@@ -30,14 +30,17 @@ __all__ = ["run_assemble", "structure_variants"]
 
 def structure_variants(models: Mapping, paper_models: Mapping[str, str | Path], pid) -> dict:
     """Stability of the loop with each subsystem in the paper's structure, and all together.
-    A failed paper fit is reported as failed (with its reason), never replaced."""
-    paper = {}
+    A failed paper fit is reported as failed (with its reason), never replaced; a structure not
+    identified (``identification.structure_evidence: false``) as ``skipped``."""
+    paper, out = {}, {}
     for k, path in paper_models.items():
+        if load_npz(path)[1].get("skipped"):  # not identified (identification.structure_evidence: false)
+            out[k] = {"skipped": True}
+            continue
         try:
             paper[k] = load_model(path)
         except Failed as exc:
             paper[k] = exc
-    out = {}
     for k in list(paper) + (["all"] if paper else []):
         mm = {s: paper.get(s, models[s]) if k == "all" else (paper[k] if s == k else models[s]) for s in models}
         failed = [f"{s}: {v}" for s, v in mm.items() if isinstance(v, Failed)]

@@ -47,7 +47,7 @@ from ..paper import PAPER
 from .summary import first_failure
 
 __all__ = ["ceiling_fits", "run_ceiling", "ceiling_channels", "QUANTITIES", "OUTCOMES", "run_quantities", "distribution",
-           "chain_summary", "reproduces", "collect_ensemble", "ensemble_figure", "fill_shared_nonlinear"]
+           "chain_summary", "reproduces", "collect_ensemble", "ensemble_figure", "fill_shared_nonlinear", "explain"]
 
 
 # ------------------------------------------------------------------------------- the ceiling
@@ -301,6 +301,59 @@ def reproduces(chains: Mapping[str, Mapping], criteria: Mapping) -> dict:
     return out
 
 
+def _rng(d: Mapping, fmt: str = ".3g", unit: str = "") -> str:
+    if not d.get("K"):
+        return "none"
+    return f"{d['median']:{fmt}}{unit} [{d['min']:{fmt}}–{d['max']:{fmt}}]"
+
+
+def explain(chains: Mapping[str, Mapping], repro: Mapping, names: Mapping[str, str] | None = None) -> dict:
+    """Per headline, a sentence computed from the chains' numbers: which chain reproduces it
+    and, when none does, why (the ceiling, the nearest chain and its computed μ-peak cause, the
+    LTI models' critical amplitudes against the sweep's)."""
+    names = names or {c: c for c in chains}
+    fy = float(PAPER["fit_y_pct"][0])
+    out = {}
+    # the y fit
+    who = repro["fit_y"]["chains"]
+    ceil = next((c["quantities"]["fit_y_pct"].get("ceiling") for c in chains.values()
+                 if c["quantities"]["fit_y_pct"].get("ceiling")), None)
+    parts = [f"Reproduced by {', '.join(names[c] for c in who)}." if who else "No chain reproduces it."]
+    if ceil:
+        rel = ("above every run's ceiling: no LTI model can fit the y axis that well on this simulator (its "
+               "self-sensed loop's noise limits any deterministic prediction)" if fy > ceil["max"] else
+               "inside the ceiling's range: the paper's fit is what an exact model reaches against one noisy run"
+               if ceil["min"] <= fy <= ceil["max"] else "below the ceiling: within reach of a model")
+        parts.append(f"The ceiling (nonlinear against nonlinear) is {_rng(ceil, '.4g', ' %')}; the paper's {fy:g} % "
+                     f"is {rel}.")
+    parts.append("The chains: " + "; ".join(f"{names[n]} {_rng(c['quantities']['fit_y_pct'], '.4g', ' %')}"
+                                             for n, c in chains.items()) + ".")
+    out["fit_y"] = " ".join(parts)
+    # the mu peak
+    who = repro["mu_peak"]["chains"]
+    parts = [f"Reproduced by {', '.join(names[c] for c in who)}." if who else "No chain reproduces it."]
+    for n, c in chains.items():
+        q = c["quantities"]
+        cause = ", ".join(f"{k} in {v}" for k, v in sorted((c.get("mu_peak_causes") or {}).items(), key=lambda kv: -kv[1]))
+        parts.append(f"{names[n]}: peak at {_rng(q['mu_peak_hz'], '.3g', ' Hz')}, scale "
+                     f"{_rng(q['mu_scale_for_unity'], '.3g')}" + (f" (computed cause: {cause})" if cause else "") + ".")
+    out["mu_peak"] = " ".join(parts)
+    # the delevitation
+    who = repro["delevitation"]["chains"]
+    parts = [f"Reproduced by {', '.join(names[c] for c in who)}." if who else "No chain reproduces it."]
+    for n, c in chains.items():
+        q, fr = c["quantities"], c["fractions"]
+        parts.append(f"{names[n]}: the nonlinear model delevitates in {fr['delevitates_nonlinear']['count']}/"
+                     f"{fr['delevitates_nonlinear']['K']} realisations (at {_rng(q['delevitation_nonlinear_s'], '.3g', ' s')}"
+                     f"; critical amplitude {_rng(q['critical_nonlinear_um'], '.3g', ' µm')}), the nominal LTI model in "
+                     f"{fr['delevitates_nominal']['count']}/{fr['delevitates_nominal']['K']} (critical "
+                     f"{_rng(q['critical_nominal_um'], '.3g', ' µm')}), an augmented one in "
+                     f"{fr['delevitates_augmented']['count']}/{fr['delevitates_augmented']['K']} (critical "
+                     f"{_rng(q['critical_augmented_um'], '.3g', ' µm')}).")
+    out["delevitation"] = " ".join(parts)
+    return out
+
+
 # ------------------------------------------------------------------------------- the stage
 def collect_ensemble(chains: Mapping[str, Sequence[tuple[str, str | Path]]], ceilings: Mapping[str, str | Path],
                      criteria: Mapping, out_json: str | Path, out_fig: str | Path | None = None) -> dict:
@@ -330,6 +383,8 @@ def collect_ensemble(chains: Mapping[str, Sequence[tuple[str, str | Path]]], cei
         res["chains"][name] = c
     res["K"] = max((c["realisations"] for c in res["chains"].values()), default=0)
     res["reproduces"] = reproduces(res["chains"], criteria)
+    for key, why in explain(res["chains"], res["reproduces"]).items():
+        res["reproduces"][key]["why"] = why
     write_json(out_json, res)
     if out_fig is not None:
         ensemble_figure(res, out_fig)

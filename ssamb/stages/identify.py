@@ -81,6 +81,19 @@ def _paper_variant(est_npz, val_npz, subsystem: str, variant: str, order: int, m
             "spectral_radius": m2.spectral_radius, "stable": bool(m2.is_stable)}
 
 
+#: reason written in place of the other structure's model when it is not identified
+SKIPPED = "not identified (config identification.structure_evidence: false)"
+
+
+def _skip_variant(subsystem: str, variant: str, out_variant) -> dict:
+    """The other structure not identified (``identification.structure_evidence: false``): a
+    marker file that says so (:data:`SKIPPED`; reading it as a model raises)."""
+    if out_variant is not None:
+        save_failed(out_variant, SKIPPED, {"stage": f"identify/{subsystem}", "subsystem": subsystem,
+                                           "variant": variant, "skipped": True})
+    return {"variant": variant, "skipped": True, "failed": False, "error": None}
+
+
 def _loop_candidates(est, sel, subsystem: str, variant: str, order: int, params: Mapping, fs: float,
                      out_candidates) -> dict:
     """Candidates for the selection by the assembled loop: with ``identification.selection:
@@ -142,8 +155,11 @@ def run_identify(estimation_npz: str | Path, validation_npz: str | Path, subsyst
             loop_cands = _loop_candidates(est, sel, subsystem, variant, order, params, fs, out_candidates)
         scan = _order_scan(est, val, params["order_scan"], sel, fs, kw)
         other = paper if variant != paper else ours
-        variant_info = _paper_variant(estimation_npz, validation_npz, subsystem, other, order, sel.method, kw,
-                                      out_variant)
+        if params.get("structure_evidence", True):
+            variant_info = _paper_variant(estimation_npz, validation_npz, subsystem, other, order, sel.method, kw,
+                                          out_variant)
+        else:
+            variant_info = _skip_variant(subsystem, other, out_variant)
     save_model(out_model, sel.model)
     info = {"subsystem": subsystem, "variant": {key: variant}, "paper_variant": variant_info,
             "loop_candidates": loop_cands,

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 from .analysis import identification, mu, uncertainty, validation
 from .closeloop import closeloop
+from .ensemble import ensemble
 from .overview import comparison, figures, overview, parameters, provenance, simulation
 from .rigs import rigs
 from .study import paper_way, sensitivity
 
 __all__ = ["ORDER", "overview", "comparison", "figures", "parameters", "simulation", "identification",
-           "uncertainty", "mu", "validation", "paper_way", "sensitivity", "closeloop", "rigs", "provenance"]
+           "uncertainty", "mu", "validation", "paper_way", "ensemble", "sensitivity", "closeloop", "rigs", "provenance"]
 
 #: names of the section functions in report order
 ORDER = ("overview", "comparison", "figures", "simulation", "identification", "uncertainty", "mu",
-         "validation", "paper_way", "sensitivity", "closeloop", "rigs", "provenance", "parameters")
+         "validation", "paper_way", "ensemble", "sensitivity", "closeloop", "rigs", "provenance", "parameters")

@@ -49,12 +49,23 @@ def sensitivity(ctx: Context) -> Section:
                        "after it holds it.")
     keys = ("fit_y_pct", "mu_peak_hz", "mu_scale_for_unity", "critical_nonlinear_um", "critical_lti_um",
             "delevitation_nonlinear_s")
-    rows = [[n, v.get("stable"), *[v.get(k) for k in keys], "; ".join(failure_lines(v["failed"]))]
+    noise = st.get("noise") or {}
+    rows = [[n, v.get("stable"), *[v.get(k) for k in keys],
+             ", ".join(k for k, b in (v.get("beyond_noise") or {}).items() if b) or ("none" if noise else "—"),
+             "; ".join(failure_lines(v["failed"]))]
             for n, v in st["variants"].items()]
     ans = st["answers"]
+    band = (("Each variant is one noise realisation: a variant moves a headline only where its value leaves the "
+             "noise band around the baseline (the spread of the default chain over "
+             f"{max(b['K'] for b in noise.values())} noise realisations, grey in the tornado), and the answers "
+             "below widen each criterion by that band.") if noise else
+            "Each variant is one noise realisation; after `snakemake --cores 2 ensemble` the study (rerun) marks "
+            "which variants move a headline beyond the noise.")
     return sec.add(
+        band,
         Table(["variant", "LTI loop stable", "fit y (%)", "μ peak (Hz)", "μ weight scale", "critical amplitude, "
-               "nonlinear (µm)", "critical amplitude, LTI (µm)", "delevitation (s)", "failed stages"], rows),
+               "nonlinear (µm)", "critical amplitude, LTI (µm)", "delevitation (s)", "beyond the noise",
+               "failed stages"], rows),
         Image(ctx.path("study", "tornado.png")),
         "**Which assumptions reproduce the paper's headlines (computed over the variants):** " + " ".join(
             f"Variants that {answer_text(st, k)}: {', '.join(f'`{n}`' for n in ans[k]) or 'none'}." for k in ans))
