@@ -6,9 +6,12 @@ objects the stages work with.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping
+from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
+
+if TYPE_CHECKING:  # python-control is imported where a model is built (it is slow to import)
+    import control
 
 from .identification import IdentifiedModel
 from .io import DataError, atomic_path, load_npz, read_json, save_npz, write_json

@@ -116,7 +116,8 @@ def ensemble_chains(config: Mapping) -> list[str]:
         raise ConfigError(f"scenario name '{DEFAULT_CHAIN}': reserved for the default run (config ensemble.runs)")
     bad = [c for c in chains if c != DEFAULT_CHAIN and c not in scen]
     if bad:
-        raise ConfigError(f"config key 'ensemble.runs': {bad} not '{DEFAULT_CHAIN}' nor a scenario of config 'scenarios'")
+        raise ConfigError(f"config key 'ensemble.runs': {bad} not '{DEFAULT_CHAIN}' nor a scenario of config "
+                          "'scenarios'")
     return chains
 
 

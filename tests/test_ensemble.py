@@ -156,7 +156,8 @@ def test_collect_and_the_report_sections(tmp_path):
     from ssamb.stages.ensemble import collect_ensemble
 
     def summ(fy, stable=True, t_nl=0.185):
-        return {"fit_pct": {"x": 92.0 if stable else None, "y": fy if stable else None}, "subsystem_fit_pct": {"selfsensing": {"y_ss": 60.0}},
+        return {"fit_pct": {"x": 92.0 if stable else None, "y": fy if stable else None},
+                "subsystem_fit_pct": {"selfsensing": {"y_ss": 60.0}},
                 "weight_fit_max_db": 2.5, "orders": {"plant": 9, "amplifier": 7, "selfsensing": 3},
                 "iso14839_peak_sensitivity": {"x": 1.4, "y": 3.0},
                 "mu": {"selfsensing": {"peak": 800.0, "peak_hz": 2.1, "scale_for_unity": 1 / 800.0,

@@ -142,7 +142,8 @@ def test_the_study_against_the_noise(tmp_path, cfg):
     # 43 % with a noise band of [38, 51] reaches 50.76 %; a 5 Hz peak with [2.5, 10] reaches 2 Hz x 1.5
     assert answers({"v": q}, crit, ens) == {"delevitation": [], "mu_peak_near_2hz": ["v"], "fit_y_near_paper": ["v"]}
     assert answers({"v": q}, crit) == {"delevitation": [], "mu_peak_near_2hz": [], "fit_y_near_paper": []}
-    ok = {"fit_pct": {"x": 97.0, "y": 30.0}, "mu": {"selfsensing": {"peak": 0.3, "peak_hz": 10.0, "scale_for_unity": 3.3}},
+    ok = {"fit_pct": {"x": 97.0, "y": 30.0},
+          "mu": {"selfsensing": {"peak": 0.3, "peak_hz": 10.0, "scale_for_unity": 3.3}},
           "delevitation_s": {}, "details": {"assembly": {"stable": True}}, "failed": {}}
     inside = {**ok, "fit_pct": {"x": 97.0, "y": 36.0}}
     beyond = {**ok, "fit_pct": {"x": 97.0, "y": 45.0}}

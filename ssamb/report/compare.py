@@ -263,7 +263,8 @@ def _order_row(S, views, ceiling) -> list:
     if ceiling:
         row.append("")
     return row + [ours for n in CHAINS if n != "default" and n in views] + [
-        "Configured (identification.<subsystem>.order) in every chain; the order scan in report section 2 is the evidence."]
+        "Configured (identification.<subsystem>.order) in every chain; the order scan in report section 2 is "
+        "the evidence."]
 
 
 def _mu_why(views, study, ensemble) -> str:
@@ -283,7 +284,8 @@ def _counts(c: Mapping) -> str:
 
 
 def _mu_rows(S, views, ceiling, study, ensemble) -> list:
-    return [_row(views, ceiling, "weight fit, largest deviation from the envelope", f"<= {PAPER['weight_fit_max_db'][0]} dB",
+    return [_row(views, ceiling, "weight fit, largest deviation from the envelope",
+                 f"<= {PAPER['weight_fit_max_db'][0]} dB",
                  "weight_fit_max_db", "Every chain's fit is held to the same tolerance (config uncertainty.tol_db).",
                  d=3, unit=" dB"),
             _row(views, ceiling, "weight scale factor for a μ peak of 1 (self-sensing)",

@@ -40,13 +40,13 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..identification import nrmse_fit
 from ..io import read_json, write_json
 from ..model_io import load_record
 from ..paper import PAPER
 from .summary import first_failure
 
-__all__ = ["ceiling_fits", "run_ceiling", "ceiling_channels", "QUANTITIES", "OUTCOMES", "run_quantities", "distribution",
+__all__ = ["ceiling_fits", "run_ceiling", "ceiling_channels", "QUANTITIES", "OUTCOMES", "run_quantities",
+           "distribution",
            "chain_summary", "reproduces", "collect_ensemble", "ensemble_figure", "fill_shared_nonlinear", "explain"]
 
 
@@ -135,8 +135,10 @@ def _sub_fit(sub: str, ch: str) -> Callable:
 QUANTITIES: dict[str, tuple[str, str, Callable, tuple | None]] = {
     "fit_x_pct": ("closed-loop LTI fit, x (Fig. 4)", "%", lambda s: _get(s, "fit_pct", "x"), ("fig4", "x_meas")),
     "fit_y_pct": ("closed-loop LTI fit, y (Fig. 4)", "%", lambda s: _get(s, "fit_pct", "y"), ("fig4", "y_meas")),
-    "subsystem_fit_plant_x_pct": ("plant model fit, x_meas", "%", _sub_fit("plant", "x_meas"), ("validation", "x_meas")),
-    "subsystem_fit_plant_y_pct": ("plant model fit, y_meas", "%", _sub_fit("plant", "y_meas"), ("validation", "y_meas")),
+    "subsystem_fit_plant_x_pct": ("plant model fit, x_meas", "%", _sub_fit("plant", "x_meas"),
+                                  ("validation", "x_meas")),
+    "subsystem_fit_plant_y_pct": ("plant model fit, y_meas", "%", _sub_fit("plant", "y_meas"),
+                                  ("validation", "y_meas")),
     "subsystem_fit_amplifier_ypos_pct": ("amplifier model fit, i_ypos", "%", _sub_fit("amplifier", "i_ypos"),
                                          ("validation", "i_ypos")),
     "subsystem_fit_amplifier_xpos_pct": ("amplifier model fit, i_xpos", "%", _sub_fit("amplifier", "i_xpos"),
@@ -149,7 +151,8 @@ QUANTITIES: dict[str, tuple[str, str, Callable, tuple | None]] = {
     "mu_peak_hz": ("self-sensing μ peak frequency", "Hz", lambda s: _get(s, "mu", "selfsensing", "peak_hz"), None),
     "mu_scale_for_unity": ("weight scale for a μ peak of 1 (self-sensing)", "-",
                            lambda s: _get(s, "mu", "selfsensing", "scale_for_unity"), None),
-    "critical_nonlinear_um": ("critical sweep amplitude, nonlinear", "µm", lambda s: _critical_um(s, "nonlinear"), None),
+    "critical_nonlinear_um": ("critical sweep amplitude, nonlinear", "µm", lambda s: _critical_um(s, "nonlinear"),
+                              None),
     "critical_nominal_um": ("critical sweep amplitude, nominal LTI", "µm", lambda s: _critical_um(s, "nominal LTI"),
                             None),
     "critical_augmented_um": ("critical sweep amplitude, augmented LTI (smallest over Δ)", "µm",
@@ -182,7 +185,8 @@ OUTCOMES: dict[str, tuple[str, Callable]] = {
     "stable": ("assembled LTI loop stable", lambda s: _get(s, "details", "assembly", "stable")),
     "delevitates_nonlinear": ("nonlinear model delevitates in the sweep", lambda s: _delevitates(s, "nonlinear")),
     "delevitates_nominal": ("nominal LTI model delevitates in the sweep", lambda s: _delevitates(s, "nominal LTI")),
-    "delevitates_augmented": ("an augmented LTI model delevitates in the sweep", lambda s: _delevitates(s, "augmented")),
+    "delevitates_augmented": ("an augmented LTI model delevitates in the sweep",
+                              lambda s: _delevitates(s, "augmented")),
 }
 
 
@@ -334,7 +338,8 @@ def explain(chains: Mapping[str, Mapping], repro: Mapping, names: Mapping[str, s
     parts = [f"Reproduced by {', '.join(names[c] for c in who)}." if who else "No chain reproduces it."]
     for n, c in chains.items():
         q = c["quantities"]
-        cause = ", ".join(f"{k} in {v}" for k, v in sorted((c.get("mu_peak_causes") or {}).items(), key=lambda kv: -kv[1]))
+        counts = sorted((c.get("mu_peak_causes") or {}).items(), key=lambda kv: -kv[1])
+        cause = ", ".join(f"{k} in {v}" for k, v in counts)
         parts.append(f"{names[n]}: peak at {_rng(q['mu_peak_hz'], '.3g', ' Hz')}, scale "
                      f"{_rng(q['mu_scale_for_unity'], '.3g')}" + (f" (computed cause: {cause})" if cause else "") + ".")
     out["mu_peak"] = " ".join(parts)
@@ -344,8 +349,9 @@ def explain(chains: Mapping[str, Mapping], repro: Mapping, names: Mapping[str, s
     for n, c in chains.items():
         q, fr = c["quantities"], c["fractions"]
         parts.append(f"{names[n]}: the nonlinear model delevitates in {fr['delevitates_nonlinear']['count']}/"
-                     f"{fr['delevitates_nonlinear']['K']} realisations (at {_rng(q['delevitation_nonlinear_s'], '.3g', ' s')}"
-                     f"; critical amplitude {_rng(q['critical_nonlinear_um'], '.3g', ' µm')}), the nominal LTI model in "
+                     f"{fr['delevitates_nonlinear']['K']} realisations (at "
+                     f"{_rng(q['delevitation_nonlinear_s'], '.3g', ' s')}; critical amplitude "
+                     f"{_rng(q['critical_nonlinear_um'], '.3g', ' µm')}), the nominal LTI model in "
                      f"{fr['delevitates_nominal']['count']}/{fr['delevitates_nominal']['K']} (critical "
                      f"{_rng(q['critical_nominal_um'], '.3g', ' µm')}), an augmented one in "
                      f"{fr['delevitates_augmented']['count']}/{fr['delevitates_augmented']['K']} (critical "
