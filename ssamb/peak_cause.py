@@ -22,12 +22,18 @@ of the AMB plant" (~2 Hz). A μ peak at :math:`f^*` can come from three places, 
    :math:`|W(j2\pi f^*)|` and recomputes: if the peak stays at :math:`f^*`, the loop shapes it,
    if it moves, the weight does;
 3. **a plant mode**: the identified plant's poles in the same map, in particular its unstable
-   pole :math:`s = +\sqrt{k_s/m}` (the critical frequency :math:`\sqrt{k_s/m}/2\pi`).
+   pole :math:`s = +\sqrt{k_s/m}` (the critical frequency :math:`\sqrt{k_s/m}/2\pi`);
+4. **a near-cancellation**: the zeros of the self-sensing model (its transfer from its input
+   to ``y_ss``) in the same map. A zero next to a loop pole (the PID's integrator at
+   :math:`z = 1`, a slow plant or amplifier pole) leaves a slow closed-loop pole beside it that
+   the loop barely controls -- the signature of a model that must map a large operating point
+   (3.6 A of bias current) onto about 0 m without an offset term.
 
 The verdict (:func:`peak_cause` ``cause``) follows written rules: "closed-loop pole" when the
 dominant mode lies within :data:`NEAR_FACTOR` of :math:`f^*` and damping it lowers μ there by
-at least :data:`DOMINANT_DROP`; otherwise "weight" when the flat-weight peak moves by more than
-:data:`NEAR_FACTOR`; otherwise "loop gain (no single mode)". A peak at an end of the grid is
+at least :data:`DOMINANT_DROP` -- "near-cancellation" when, besides, a zero of the self-sensing
+model lies within :data:`NEAR_FACTOR` of that mode; otherwise "weight" when the flat-weight
+peak moves by more than :data:`NEAR_FACTOR`; otherwise "loop gain (no single mode)". A peak at an end of the grid is
 flagged (``at_grid_edge``). Every number behind the verdict is returned, so a report can show
 the computation rather than assert it.
 """
@@ -39,7 +45,7 @@ from typing import Mapping, Sequence
 import control
 import numpy as np
 
-__all__ = ["discrete_modes", "modal_terms", "weight_features", "peak_cause"]
+__all__ = ["discrete_modes", "modal_terms", "weight_features", "peak_cause", "sensor_zeros"]
 
 #: a mode "sits at" the peak when its natural frequency is within this factor of f*
 NEAR_FACTOR = 1.5
@@ -174,13 +180,35 @@ def _mode_effects(lam, res, D, dt, wfun, f_hz, blk, dzeta) -> list[dict]:
     return out
 
 
+def _near(f: float, f0: float) -> bool:
+    return f > 0 and f0 > 0 and abs(np.log(f / f0)) <= np.log(NEAR_FACTOR)
+
+
+def sensor_zeros(selfsensing, dt: float) -> tuple[list[dict], float]:
+    """Zeros of the self-sensing model (its input -> ``y_ss``, the affine column left out) as
+    :func:`discrete_modes` (each with ``abs_z``), and its static gain
+    :math:`c (I - A)^{-1} b + d`."""
+    ins = list(selfsensing.all_input_names)
+    j = next(i for i, n in enumerate(ins) if n != "one")
+    A, b = np.asarray(selfsensing.A, float), np.asarray(selfsensing.B, float)[:, [j]]
+    c, d = np.asarray(selfsensing.C, float)[[0]], np.asarray(selfsensing.D, float)[[0]][:, [j]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        z = control.zeros(control.ss(A, b, c, d, dt))
+    dc = float((c @ np.linalg.solve(np.eye(len(A)) - A, b) + d)[0, 0])
+    return discrete_modes(z, dt), dc
+
+
 def _verdict(a: dict, edge, plant_crit) -> tuple[str, str]:
     """Primary cause and the report sentence of one attribution (rules in the module docstring)."""
     f_pk, dom, damped, flat_hz = a["peak_hz"], a["dominant"], a["damped_dominant"], a["flat_weight"]["peak_hz"]
-    near = lambda f: f > 0 and abs(np.log(f / f_pk)) <= np.log(NEAR_FACTOR)  # noqa: E731
+    near = lambda f: _near(f, f_pk)  # noqa: E731
     mode_cause = dom["mu_drop"] >= DOMINANT_DROP and near(dom["f_hz"])
     weight_cause = not near(flat_hz)
-    cause = "closed-loop pole" if mode_cause else "weight" if weight_cause else "loop gain (no single mode)"
+    zeros = a.get("sensor_zeros") or []
+    cancel = [z for z in zeros if _near(z["f_hz"], dom["f_hz"])] if mode_cause else []
+    cause = ("near-cancellation" if cancel else "closed-loop pole" if mode_cause else "weight" if weight_cause
+             else "loop gain (no single mode)")
     where = {"low": " (the grid's lowest frequency: mu rises towards DC)",
              "high": " (the grid's highest frequency)"}.get(edge, "")
     pole = (f"{dom['f_hz']:.3g} Hz, zeta {dom['zeta']:.2g} (damping it by {DZETA:g} lowers mu there by "
@@ -190,6 +218,13 @@ def _verdict(a: dict, edge, plant_crit) -> tuple[str, str]:
         f"no single closed-loop pole sets it (most sensitive: {pole})"
     text += (f"; there |W| = {a['weight_mag']:.3g} and the unweighted transfer {a['loop_gain_at_peak']:.3g}; "
              f"with a flat weight the peak is at {flat_hz:.3g} Hz")
+    if cancel:
+        z = cancel[0]
+        text += (f"; the self-sensing model has a zero at {z['f_hz']:.3g} Hz (|z| = {z['abs_z']:.6f}) next to that "
+                 f"pole: a near-cancellation (its static gain {a.get('sensor_dc_gain', float('nan')):.3g})")
+    elif any(near(z["f_hz"]) for z in zeros):
+        z = next(z for z in zeros if near(z["f_hz"]))
+        text += f"; the self-sensing model has a zero at {z['f_hz']:.3g} Hz"
     if plant_crit is not None:
         text += ("; the identified plant model's unstable pole (the critical frequency sqrt(ks/m)/2pi) is at "
                  f"{plant_crit:.3g} Hz")
@@ -237,7 +272,7 @@ def _interior_max(sweep) -> tuple[float, float] | None:
 
 
 def peak_cause(loop: control.StateSpace, weights: Mapping, case: str, sweep, plant=None,
-               n_modes: int = 5) -> dict:
+               n_modes: int = 5, selfsensing=None) -> dict:
     r"""The computed cause of the μ peak of one uncertainty case.
 
     Parameters
@@ -254,6 +289,9 @@ def peak_cause(loop: control.StateSpace, weights: Mapping, case: str, sweep, pla
         The plant model whose poles (and unstable pole, the critical frequency) are reported.
     n_modes : int
         Least-damped closed-loop modes listed.
+    selfsensing : IdentifiedModel, optional
+        The self-sensing model whose zeros (:func:`sensor_zeros`) are checked for a
+        near-cancellation with the dominant closed-loop pole.
 
     Returns
     -------
@@ -268,7 +306,8 @@ def peak_cause(loop: control.StateSpace, weights: Mapping, case: str, sweep, pla
         (:func:`weight_features`); ``loop_gain_at_peak`` (:math:`\bar\sigma` of the
         unweighted transfer at :math:`f^*`); ``plant_modes`` and ``plant_critical_hz``;
         ``modal_error`` (relative error of the modal reconstruction of :math:`N_{11}` at the
-        peak) and ``eigvec_cond``; ``cause`` and ``sentence``; when the peak is at a grid end,
+        peak) and ``eigvec_cond``; ``sensor_zeros`` and ``sensor_dc_gain`` (with
+        ``selfsensing``); ``cause`` and ``sentence``; when the peak is at a grid end,
         ``interior`` holds the same attribution for the largest interior local maximum.
     """
     from .generalized_plant import n11_channels, n11_function
@@ -283,11 +322,14 @@ def peak_cause(loop: control.StateSpace, weights: Mapping, case: str, sweep, pla
     pm = discrete_modes(plant.poles, dt) if plant is not None else []
     crit = max((m["f_hz"] for m in pm if m["abs_z"] >= 1.0), default=None)
     edge = "low" if f_pk <= grid.min() else "high" if f_pk >= grid.max() else None
+    zeros, dc = sensor_zeros(selfsensing, dt) if selfsensing is not None else ([], None)
     a = _attribute(loop, weights, case, f_pk, sweep.peak, grid, modal)
+    a["sensor_zeros"], a["sensor_dc_gain"] = zeros, dc
     a["cause"], a["sentence"] = _verdict(a, edge, crit)
     inner = _interior_max(sweep) if edge else None
     if inner is not None:
         b = _attribute(loop, weights, case, inner[0], inner[1], grid, modal)
+        b["sensor_zeros"], b["sensor_dc_gain"] = zeros, dc
         b["cause"], b["sentence"] = _verdict(b, None, crit)
         b.pop("modes")
         a["sentence"] += f". Largest interior maximum: {b['sentence']}"

@@ -175,6 +175,32 @@ def test_peak_cause_finds_a_known_lightly_damped_pole():
     assert "60 Hz" in pc["sentence"] and "zeta 0.05" in pc["sentence"]
 
 
+def _sensor(zero_z: float) -> IdentifiedModel:
+    """A self-sensing model i_ypos -> y_ss, (z - zero_z) / ((z - 0.5)(z - 0.9)), with the offset column."""
+    d = control.ss(control.tf([1.0, -zero_z], np.polymul([1, -0.5], [1, -0.9]), DT))
+    B = np.column_stack([np.asarray(d.B), np.zeros(2)])
+    D = np.column_stack([np.asarray(d.D), [0.0]])
+    return IdentifiedModel(np.asarray(d.A), B, np.asarray(d.C), D, DT, "x", ("i_ypos",), ("y_ss",), True)
+
+
+def test_peak_cause_names_a_near_cancellation_with_a_zero_of_the_self_sensing_model():
+    from ssamb.peak_cause import peak_cause, sensor_zeros
+
+    f0, zeta = 60.0, 0.05
+    w0 = 2 * np.pi * f0
+    loop = _siso_loop([w0 ** 2 * 800.0], np.polymul([1, 2 * zeta * w0, w0 ** 2], [1, 800.0]))
+    weights = {"selfsensing": control.tf([1.0], [1.0])}
+    sweep = _mu(loop, weights)
+    z_at = np.exp(-2 * np.pi * 55.0 * DT)  # a real zero at 55 Hz, next to the 60 Hz pole
+    zeros, dc = sensor_zeros(_sensor(z_at), DT)
+    assert zeros[0]["f_hz"] == pytest.approx(55.0, rel=1e-9)
+    assert dc == pytest.approx((1 - z_at) / (0.5 * 0.1), rel=1e-9)
+    pc = peak_cause(loop, weights, "selfsensing", sweep, selfsensing=_sensor(z_at))
+    assert pc["cause"] == "near-cancellation" and "zero at 55 Hz" in pc["sentence"]
+    far = peak_cause(loop, weights, "selfsensing", sweep, selfsensing=_sensor(np.exp(-2 * np.pi * 5.0 * DT)))
+    assert far["cause"] == "closed-loop pole"
+
+
 def test_peak_cause_attributes_a_weight_bump_to_the_weight():
     from ssamb.peak_cause import peak_cause
 

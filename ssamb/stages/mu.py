@@ -47,7 +47,7 @@ def run_mu(models: Mapping[str, str | Path], weights: Mapping[str, str | Path], 
                         refine=bool(params["refine"]))
     info = {"case": case, "blk": case_structure(case), **sweep.as_dict(),
             "robustly_stable": bool(sweep.peak < 1.0), "weights": sorted(w),
-            "peak_cause": peak_cause(loop, w, case, sweep, m["plant"])}
+            "peak_cause": peak_cause(loop, w, case, sweep, m["plant"], selfsensing=m["selfsensing"])}
     save_npz(out_npz, {"freqs_hz": np.asarray(sweep.freqs_hz), "upper": np.asarray(sweep.upper),
                        "lower": np.asarray(sweep.lower)}, {"case": case})
     write_json(out_json, info)
