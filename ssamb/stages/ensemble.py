@@ -180,9 +180,18 @@ def _delevitates(s: Mapping, model_prefix: str):
     return any(bool(o.get("delevitates")) for o in outs)
 
 
+def _stable(s: Mapping):
+    """Whether the assembled loop is stable; False when the selection by the assembled loop found
+    no stable combination (then nothing was assembled); None when unknown."""
+    st = _get(s, "details", "assembly", "stable")
+    if st is None and "no stable assembled loop" in str((s.get("failed") or {}).get("select", "")):
+        return False
+    return st
+
+
 #: yes/no outcome -> (label, extractor)
 OUTCOMES: dict[str, tuple[str, Callable]] = {
-    "stable": ("assembled LTI loop stable", lambda s: _get(s, "details", "assembly", "stable")),
+    "stable": ("assembled LTI loop stable", _stable),
     "delevitates_nonlinear": ("nonlinear model delevitates in the sweep", lambda s: _delevitates(s, "nonlinear")),
     "delevitates_nominal": ("nominal LTI model delevitates in the sweep", lambda s: _delevitates(s, "nominal LTI")),
     "delevitates_augmented": ("an augmented LTI model delevitates in the sweep",
@@ -382,9 +391,13 @@ def collect_ensemble(chains: Mapping[str, Sequence[tuple[str, str | Path]]], cei
     res = {"chains": {}, "ceiling": ceil, "criteria": dict(criteria)}
     every = {name: [read_json(p) for _, p in runs] for name, runs in chains.items()}
     pool = [s for sums in every.values() for s in sums]
+    fig4_of = lambda s: _get(s, "details", "simulations", "fig4", "config_hash")  # noqa: E731
+    default_fig4 = fig4_of(every["default"][0]) if every.get("default") else None
     for name, runs in chains.items():
         sums = [fill_shared_nonlinear(s, pool) for s in every[name]]
-        c = chain_summary([r for r, _ in runs], sums, ceil)
+        # the ceilings are the default physics' runs: they bound the chains that simulate it
+        same = name == "default" or (default_fig4 is not None and fig4_of(sums[0]) == default_fig4)
+        c = chain_summary([r for r, _ in runs], sums, ceil if same else None)
         c["realisation_0"] = paper_way(sums[0])
         res["chains"][name] = c
     res["K"] = max((c["realisations"] for c in res["chains"].values()), default=0)
@@ -402,6 +415,10 @@ FIGURE_QUANTITIES = ("fit_y_pct", "fit_x_pct", "mu_peak_hz", "mu_scale_for_unity
                      "critical_nominal_um", "critical_augmented_um", "delevitation_nonlinear_s")
 _PAPER_KEY = {"fit_y_pct": "fit_y_pct", "fit_x_pct": "fit_x_pct", "mu_peak_hz": "mu_peak_hz",
               "mu_scale_for_unity": "mu_scale_for_unity", "delevitation_nonlinear_s": "delevitation_nonlinear_s"}
+
+
+#: the lowest fit a figure panel shows (lower fits are marked at the edge)
+FIT_FLOOR = -100.0
 
 
 def ensemble_figure(res: Mapping, path: str | Path) -> None:
@@ -432,10 +449,22 @@ def ensemble_figure(res: Mapping, path: str | Path) -> None:
             vals = [v for n in names for v in res["chains"][n]["quantities"][key]["values"]]
             if vals and min(vals) > 0:
                 ax.set_xscale("log")
+        if key.endswith("_um"):  # the paper's sweep: the nonlinear model below it, the LTI models above
+            ax.axvline(PAPER["sweep_amplitude_m"][0] * 1e6, color="k", ls="--", lw=1)
+        if unit == "%":  # a fit far below zero would squash the others: drawn at the edge
+            lo = min([v for n in names for v in res["chains"][n]["quantities"][key]["values"]] + [0.0])
+            if lo < FIT_FLOOR:
+                ax.set_xlim(left=FIT_FLOOR)
+                for i, n in enumerate(names):
+                    k = sum(v < FIT_FLOOR for v in res["chains"][n]["quantities"][key]["values"])
+                    if k:
+                        ax.plot([FIT_FLOOR], [i], "<", color=f"C{i}", ms=6)
+                        ax.annotate(f"{k} below", (FIT_FLOOR, i + 0.15), fontsize=6, color=f"C{i}")
         ax.set_yticks(range(len(names)), names, fontsize=7)
         ax.set_ylim(-0.6, len(names) - 0.4)
         ax.set_title(f"{label} ({unit})", fontsize=8)
     fig.suptitle(f"Noise ensembles (K = {res['K']} realisations per chain): dots realisations, bar median, grey "
-                 "the ceiling (nonlinear against nonlinear), dashed the paper", fontsize=9)
+                 "the ceiling (nonlinear against nonlinear), dashed the paper (for the critical amplitudes: its "
+                 f"{PAPER['sweep_amplitude_m'][0] * 1e6:.3g} µm sweep)", fontsize=9)
     fig.tight_layout()
     save(fig, path)
