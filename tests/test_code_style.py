@@ -26,7 +26,7 @@ HISTORY = {
     "a commit relative to another": r"\b(?:the|one|a) commit (?:before|earlier|later|after)\b",
     "a commit hash": r"\bcommit [0-9a-f]{7,40}\b",
     "a measurement quoted as a note": r"\bmeasured:",
-    "a development session": r"\b(?:the|this|a|previous|earlier|last) session\b|\bsession before\b",
+    "a development session": r"\b(?:the|this|a|previous|earlier|last) session\b(?! parameters?\b)|\bsession before\b",
     "what the code had done": r"\bhad been\b|\bpreviously\b|\bformerly\b|\bused to be\b",
     "a fix or a change": r"\bbefore the (?:fix|change|refactor)\b|\bafter the (?:fix|change|refactor)\b",
     "an issue number": r"\bissue \d+\b",
@@ -88,6 +88,7 @@ def test_no_development_history_in_docstrings_or_comments():
     ("measured on the shipped data set by bench/closeloop_speed.py", False),
     ("the response is no longer linear", False), ("a random draw of the excitation phases", False),
     ("before the sweep starts", False), ("python bench/suite.py [--draws 24]", False),
+    ("the session parameters of one recording", False), ("as the last session found", True),
 ])
 def test_the_history_phrases_catch_what_they_should(text, flagged):
     assert bool(_HISTORY.search(text)) is flagged

@@ -252,6 +252,9 @@ def _holdout_z(dev, name: str, arrays, meta, cfg, settings, overrides: dict, wit
         replay.close()
 
 
+_SESSION_ERRORS_ON = ", after each one's own fitting part, on which its session parameters are calibrated"
+
+
 def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, settings, workers: int) -> tuple:
     """The session parameters of one held-out recording, calibrated on its own fitting part with
     everything else at ``overrides`` (the combined model): ``(session overrides, the part's slice
@@ -394,8 +397,7 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
             "recordings": {n: _brief(r) for n, r in reps.items()},
             "session_parameters": sessions,
             "validation": {"fit_recordings": list(reps), "holdout_recordings": list(hold),
-                           "errors_on": ("held-out recordings" + (", after each one's own fitting part, on which its "
-                                                                  "session parameters are calibrated" if session else "")),
+                           "errors_on": "held-out recordings" + (_SESSION_ERRORS_ON if session else ""),
                            "alpha_accept": settings.alpha_accept},
             "data": {"device": dev.name}}
     return rep, {"device": dev, "holdout": art}
