@@ -136,3 +136,23 @@ def test_slurm_profile_plans_one_job_per_stage_and_run(tmp_path):
     assert len(jobs) == len(set(jobs))
     runs = {w.split("run=")[1].split(",")[0] for _, w in jobs if "run=" in w}
     assert {"", "runs/paper/", "runs/sweep_amp/"} <= runs
+
+
+def test_slurm_profile_plans_the_ensembles_one_job_per_stage_and_realisation(tmp_path):
+    """`snakemake -n --profile workflow/profiles/slurm ensemble`: every stage of every noise
+    realisation is its own job, nothing planned twice; the paper's way identifies from the default
+    run's simulations of the same realisation (no simulate job of its own)."""
+    pytest.importorskip("snakemake_executor_plugin_slurm")
+    _copy_repo(tmp_path)
+    r = _run(tmp_path, "ensemble", "-n", "--profile", "workflow/profiles/slurm", "--configfile", "config.yaml",
+             "smoke.yaml")
+    jobs = _planned(r.stdout + r.stderr)
+    assert len(jobs) == len(set(jobs))
+    runs = {w.split("run=")[1].split(",")[0] for _, w in jobs if "run=" in w}
+    for chain in ("default", "paper", "paper_literal", "paper_rig"):
+        assert f"runs/{chain}.r1/" in runs, chain
+        assert ("summary", f"run=runs/{chain}.r1/") in jobs
+    ident = {w for rule, w in jobs if rule == "identify"}
+    assert {f"run=runs/paper.r1/, subsystem={s}" for s in ("plant", "amplifier", "selfsensing")} <= ident
+    assert not [w for rule, w in jobs if rule == "simulate" and "run=runs/paper.r1/" in w]
+    assert ("ensemble_collect", "") in jobs and ("ceiling", "kind=fig4") in jobs
