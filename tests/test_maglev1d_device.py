@@ -205,3 +205,39 @@ def test_notes_say_when_the_logged_command_does_not_follow_from_the_controller()
     a = dict(arrays)
     a["u"] = 0.8 * arrays["u"]
     assert any(n.startswith("u: the logged command follows") for n in DEV.notes(a, meta, CFG))
+
+
+def test_start_estimate_puts_the_face_where_the_rig_reads_it():
+    """The force law's length and the sensor's zero are one quantity to a levitated ball
+    (:func:`ssamb.maglev1d.checks.face_anchored`): moving the zero to the face's reading and the
+    length with it replays the levitated stretches unchanged; the start estimate's model puts the
+    face at the reading the ball stuck there shows (the ADC's 0), not 1.5 mm into the range."""
+    import copy
+
+    from ssamb.maglev1d import checks as K
+    from ssamb.maglev1d import physics as P
+
+    rec = _record("escalon")
+    est = {"sensors.position_gain": 0.81, "sensors.position_offset_m": 0.0015, "amplifier.v_max_v": 4.86,
+           "amplifier.drop_v": 1.25, "magnet.k0_h": 0.063}
+    anchored = K.face_anchored(est, CFG)
+    assert anchored["sensors.position_offset_m"] == 0.0
+    assert anchored["magnet.a_m"] == pytest.approx(0.0052 - 0.0015 / 0.81)
+    assert anchored["magnet.k_h"] * anchored["magnet.a_m"] == pytest.approx(0.0327 * 0.0052)
+
+    def cfg_of(ov):
+        c = copy.deepcopy(CFG)
+        for k, v in ov.items():
+            sec, key = k.split(".")
+            c[sec][key] = v
+        return c
+
+    one, two = (DEV.replay(cfg_of(ov), rec, [], rec.n, None) for ov in (est, anchored))
+    a, b = rec.usable[0]
+    for c, q in (("y", 0.05 / 1023), ("i", 5 / 2.2 / 1023)):
+        # the same loop: the quantised loop's flicker decorrelates the samples, its mean and spread stay
+        x1, x2 = one.channels[c][a:b], two.channels[c][a:b]
+        assert abs(np.mean(x1) - np.mean(x2)) < 0.2 * q and np.std(x1) == pytest.approx(np.std(x2), rel=0.1), c
+    assert not one.contact and not two.contact
+    start = cfg_of(DEV.initial_estimate(rec, CFG))
+    assert abs(P.reading_m(P.knobs_of(start), 0.0)) < 0.05 / 1023

@@ -25,7 +25,10 @@ parameters predict:
   :math:`V_0 g` (coil and shunt resistance as published), the gap-independent inductance
   :math:`k_0 = \tau R - k/(1 + \bar y/a)`, and the position sensor's scale and zero from the
   plateaus' line :math:`i = s (y + A)`: :math:`g_s = \sqrt{2 m g/(k a)}/s`, :math:`o_s = a g_s - A`
-  (with one level, :math:`g_s = 1`). A start for the calibration, never its result.
+  (with one level, :math:`g_s = 1`); then the same model anchored at the face
+  (:func:`face_anchored`: the sensor's zero where the ball stuck to the magnet reads, the law's
+  length and force constant moved to keep every levitated replay). A start for the calibration,
+  never its result.
 * :func:`current_at_rest` -- the current reading with the stage off: after ``rest_s`` of zero
   command the coil's current has decayed (:math:`e^{-20}` at its 10-20 ms time constant), so the
   reading is the current sensor's zero; the model reads 0.
@@ -49,7 +52,7 @@ from . import controller as _ctl
 from .physics import equilibrium_current_a, inductance_h
 
 __all__ = ["coil_time_constant", "equilibrium_currents", "noise_levels", "loop_poles", "start_estimate",
-           "mean_force_offset", "current_at_rest", "face_reading"]
+           "face_anchored", "mean_force_offset", "current_at_rest", "face_reading"]
 
 
 def _levitated_steady(arrays: Mapping, cfg: Mapping, y_max_m: float = 0.012) -> np.ndarray:
@@ -204,7 +207,32 @@ def start_estimate(arrays: Mapping, cfg: Mapping) -> dict:
         o = mean_force_offset(arrays, cfg, gs)
         if o is not None:
             out["sensors.position_offset_m"] = o
-    return {k: float(v) for k, v in out.items()}
+    return {k: float(v) for k, v in face_anchored(out, cfg).items()}
+
+
+def face_anchored(est: Mapping, cfg: Mapping) -> dict:
+    r"""The same model with the sensor's zero where the magnet's face reads (``cfg``'s
+    ``sensors.position_offset_m``) and the force law's length moved instead.
+
+    In reading coordinates the law's equilibrium current :math:`(C/g_s)(a g_s - o_s + y_s)`,
+    :math:`C = \sqrt{2 m g/(k a)}`, and the gap-dependent inductance :math:`k a g_s/(a g_s - o_s + y_s)`
+    depend on :math:`(a, k, o_s)` only through :math:`a g_s - o_s` and :math:`k a`: the transformation
+    :math:`a' = a - (o_s - o_{face})/g_s`, :math:`k' = k a/a'`, :math:`o_s' = o_{face}` leaves every replay
+    of the levitated ball unchanged and moves only the face, the upper stop, to the reading the
+    rig shows there. ``est`` without a sensor zero, or a length that would not stay positive, is
+    returned as it is."""
+    out = dict(est)
+    if "sensors.position_offset_m" not in out:
+        return out
+    mg_, se = cfg["magnet"], cfg["sensors"]
+    gs = float(out.get("sensors.position_gain", se["position_gain"]))
+    k = float(out.get("magnet.k_h", mg_["k_h"]))
+    a = float(out.get("magnet.a_m", mg_["a_m"]))
+    a2 = a - (out["sensors.position_offset_m"] - float(se["position_offset_m"])) / gs
+    if a2 < 0.1 * a:
+        return out
+    out.update({"magnet.a_m": a2, "magnet.k_h": k * a / a2, "sensors.position_offset_m": float(se["position_offset_m"])})
+    return out
 
 
 def mean_force_offset(arrays: Mapping, cfg: Mapping, gs: float) -> float | None:
