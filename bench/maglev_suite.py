@@ -5,8 +5,8 @@
 
 Each draw takes a real recording (drawn among the five) and builds a rig that is not the model:
 every calibratable parameter is drawn uniformly within one prior standard deviation of the rig's
-centre (the parameters the real recordings calibrated, from ``--center``; without it the values
-the device's physical checks imply on the step recording); rigs outside the config's physical
+centre (the values the device's physical checks imply on the step recording, replaced by the
+parameters the real recordings identified, from ``--center``); rigs outside the config's physical
 ranges or whose linearised loop is unstable at the operating point are drawn again, and so are
 rigs whose replay touches a stop or never levitates (such a rig cannot levitate with the rig's
 controller). The rig gets one library effect with a size drawn from its range (:data:`SIZES`),
@@ -21,6 +21,16 @@ declared. Effects the device says a recording cannot identify (their parameteris
 a reason: absorbed by the calibrated parameters, or visible only across levels) are not drawn
 there and are listed with the reason. One JSON line per draw goes to ``--out`` as it ends; the
 summary printed at the end: pass rates, per effect, false alarms, time per draw.
+
+Every draw is also set against its truth (:func:`against_truth`): the rig's own model (its
+parameters and its effect) and the analysis's final model each predict the draw's data (mean of
+``REPLAYS`` seeded replays) on the fitting and on the held-out part. A draw whose truth does not
+predict the held-out data significantly better than the final model (one-sided paired t-test
+over 0.2 s blocks of the summed squared residuals, each channel scaled by the truth's residual
+variance, level ``ALPHA``) is *invisible*: these data cannot show its effect, and it is counted
+apart, never as a find nor hidden. The oracle check tells a miss of the search from a limit of
+the data: the truth significantly better on the fitting part, which the search minimised, means
+the search stopped short of a better model it could have reached.
 """
 from __future__ import annotations
 
@@ -57,13 +67,66 @@ SIZES = {
 }
 
 
+#: replays averaged into a prediction, the level of the truth-against-final-model test, and its
+#: blocks (s): several periods of the loop's 2-7 Hz modes, at least 5 in a held-out part of 1 s
+REPLAYS, ALPHA, BLOCK_S = 8, 0.01, 0.2
+
+
+def _prediction(dev, cfg, rec, effects, seeds) -> dict:
+    outs = [dev.replay(cfg, rec, effects, rec.n, s) for s in seeds]
+    return {**{c: np.mean([o.channels[c] for o in outs], axis=0) for c in dev.channels},
+            "contacts": sum(bool(o.contact) for o in outs)}
+
+
+def against_truth(dev, cfg, rig, true, data, meta, rep, seed: int) -> dict:
+    """The truth (``rig`` with the effect ``true``) and the analysis's final model against the
+    draw's data on its fitting and held-out parts (module docstring): per part the ratio of the
+    final model's cost to the truth's (1: as good) and the one-sided p-value of 'the truth
+    predicts better'."""
+    from scipy import stats
+
+    from ssamb.config import apply_overrides
+
+    rec = dev.record(data, meta, cfg, "draw")
+    fin = rep.get("final_model", {})
+    seeds = [seed * 1000 + j for j in range(REPLAYS)]
+    p_true = _prediction(dev, rig, rec, [true] if true else [], seeds)
+    p_fin = _prediction(dev, apply_overrides(cfg, fin.get("overrides", {})), rec, fin.get("effects", []), seeds)
+    out = {}
+    val = rep["validation"]
+    for part, (t0, t1) in (("fit", val["fit_s"]), ("holdout", val["holdout_s"])):
+        a, b = int(round(t0 * rec.fs_hz)), int(round(t1 * rec.fs_hz))
+        d, cost_t, cost_f = 0.0, 0.0, 0.0
+        for c in dev.channels:
+            rt = data[c][a:b] - p_true[c][a:b]
+            rf = data[c][a:b] - p_fin[c][a:b]
+            v = max(float(np.var(rt)), 1e-30)
+            d = d + (rf ** 2 - rt ** 2) / v
+            cost_t += float(np.mean(rt ** 2)) / v
+            cost_f += float(np.mean(rf ** 2)) / v
+        w = int(round(BLOCK_S * rec.fs_hz))
+        blocks = np.array([np.mean(d[k:k + w]) for k in range(0, len(d) - w + 1, w)])
+        if len(blocks) >= 5 and np.std(blocks) > 0:
+            tt = np.mean(blocks) / (np.std(blocks, ddof=1) / np.sqrt(len(blocks)))
+            pv = float(stats.t.sf(tt, len(blocks) - 1))
+        else:
+            pv = 1.0
+        out[part] = {"cost_ratio": cost_f / max(cost_t, 1e-30), "p_truth_better": pv}
+    out["contacts"] = {"truth": p_true["contacts"], "final": p_fin["contacts"], "of": REPLAYS}
+    out["visible"] = out["holdout"]["p_truth_better"] < ALPHA
+    out["search_short"] = out["fit"]["p_truth_better"] < ALPHA
+    return out
+
+
 def _center(dev, cfg, path: str | None) -> dict:
-    """The rig's centre: parameters calibrated on the real recordings, or the checks' estimate."""
+    """The rig's centre: the checks' estimate on the step recording, with the parameters the real
+    recordings calibrated (``path``) in place of it where they identified them."""
+    arrays, meta = dev.load(next(p for p in RECORDINGS if "escalon" in p.name and "multi" not in p.name))
+    out = dev.initial_estimate(dev.record(arrays, meta, cfg, "centre"), cfg)
     if path and Path(path).exists():
         rep = json.loads(Path(path).read_text())
-        return {k: p["value"] for k, p in rep.get("parameters", {}).items()}
-    arrays, meta = dev.load(next(p for p in RECORDINGS if "escalon" in p.name and "multi" not in p.name))
-    return dev.initial_estimate(dev.record(arrays, meta, cfg, "centre"), cfg)
+        out.update({k: p["value"] for k, p in rep.get("parameters", {}).items()})
+    return out
 
 
 def _rig_config(dev, cfg, center, rng, settings=None, spread=1.0):
@@ -157,7 +220,8 @@ def run_draw(args) -> dict:
         return {"draw": k, "effect": true, "recording": path.stem, "failures": [f"crash: {type(exc).__name__}: {exc}"]}
     fails = _found(true, rep) if true else ([f"effects declared: {[e['name'] for e in rep['effects']]}"]
                                             if rep["effects"] else [])
-    return {"draw": k, "effect": true, "recording": path.stem, "rig": ov, "failures": fails,
+    truth = against_truth(dev, cfg, rig, true, data, meta, rep, int(rng.integers(1, 10_000)))
+    return {"draw": k, "effect": true, "recording": path.stem, "rig": ov, "failures": fails, "truth": truth,
             "summary": rep.get("summary", ""),
             "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {})}
                       for e in rep["effects"]],
@@ -211,12 +275,29 @@ def main() -> None:
             res.append(d)
             fh.write(json.dumps(d, default=float) + "\n")
             fh.flush()
+            tr = d.get("truth")
+            vs = (f" [truth vs final: cost ratio fit {tr['fit']['cost_ratio']:.3f} "
+                  f"(p {tr['fit']['p_truth_better']:.2g}), "
+                  f"held out {tr['holdout']['cost_ratio']:.3f} (p {tr['holdout']['p_truth_better']:.2g})"
+                  f"; stop hit by truth {tr['contacts']['truth']}, final {tr['contacts']['final']} of {REPLAYS}"
+                  f"{'' if tr['visible'] or not d['effect'] else ': INVISIBLE'}]") if tr else ""
             print(f"draw {d['draw']:3d} {d['effect']['name'] if d['effect'] else 'none':18s} "
-                  f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}", flush=True)
+                  f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}{vs}", flush=True)
     eff = [d for d in res if d["effect"]]
     null = [d for d in res if not d["effect"]]
     ok = sum(not d["failures"] for d in eff)
     print(f"\nwith an effect: {ok} of {len(eff)} pass ({100 * ok / max(len(eff), 1):.0f} %)")
+    judged = [d for d in eff if d.get("truth")]
+    vis = [d for d in judged if d["truth"]["visible"]]
+    inv = [d for d in judged if not d["truth"]["visible"]]
+    ok_vis = sum(not d["failures"] for d in vis)
+    short = [d for d in vis if d["failures"] and d["truth"]["search_short"]]
+    print(f"  visible in the data (the truth predicts the held-out part better than the final model, p < {ALPHA:g}): "
+          f"{len(vis)}; found {ok_vis} of them ({100 * ok_vis / max(len(vis), 1):.0f} %)")
+    print(f"  invisible (these data cannot show the effect beyond the final model): {len(inv)} "
+          f"({sum(not d['failures'] for d in inv)} of them found anyway)")
+    print(f"  missed while visible: {len(vis) - ok_vis}, of which the search stopped short (the truth also fits the "
+          f"fitting part better) in {len(short)}")
     for n in drawn:
         sel = [d for d in eff if d["effect"]["name"] == n]
         if sel:
