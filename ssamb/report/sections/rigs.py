@@ -116,12 +116,15 @@ def rigs(ctx: Context) -> Section | None:
         v = C["validation"]
         stops = [r for r, hit in C.get("stops_hit_by_model_only", {}).items() if hit]
         off = [k for k, a in C.get("agreement", {}).items() if not a["agree"]]
+        unpaired = [k for k, p in C.get("parameters", {}).items() if len(p.get("per_recording", {})) < 2]
         sec.add(f"### Rig `{d.name}` (device `{C['data']['device']}`)",
                 f"Fitted on {', '.join(v['fit_recordings'])}; held out: {', '.join(v['holdout_recordings'])}; "
                 f"errors on {v['errors_on']}. "
                 + (f"**The final model's replay touches a stop where the data do not** on {', '.join(stops)}. "
                    if stops else "The final model's replays touch no stop the data do not. ")
                 + (f"**Recordings disagree** on {', '.join(off)} (more than 3 standard errors apart). " if off else "")
+                + (f"**Agreement not established** for {', '.join(unpaired)}: identified on fewer than two fitting "
+                   "recordings. " if unpaired else "")
                 + f"Residual on the held-out recordings {'not ' if C['unexplained'] else ''}within twice the "
                 "noise floor on every channel where the published model stood above it.",
                 *_parameters(C), *_sessions(C), *_errors(C), *_effects(C), *_checks(C))
