@@ -251,6 +251,11 @@ class FeatureSpec:
     band_views : tuple
         Views whose power spectra are compared in bands (data without a usable excitation: the
         loop's response to its own noise).
+    device_line_views : tuple
+        Views compared in the cost at the device's own lines only (:attr:`Record.device_lines_hz`),
+        not among the cost views: a digital output logged without noise whose content there is
+        deterministic (the AMB's controller outputs at the PWM carrier's aliased lines, which carry
+        the loop's timing). Default none.
     """
 
     paths: dict = field(default_factory=dict)
@@ -259,6 +264,7 @@ class FeatureSpec:
     line_views: tuple = ()
     ripple_views: tuple = ()
     band_views: tuple = ()
+    device_line_views: tuple = ()
 
 
 class Device:

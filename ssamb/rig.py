@@ -533,7 +533,7 @@ SUITE_PERTURB = {"table1.mass_kg": 0.05, "table1.airgap_m": 0.05, "table1.i_bias
                  "selfsensing.calibration_gain_error": 0.05, "selfsensing.calibration_offset_error_m": 5.0e-6}
 
 
-def draw_experiment(kind: str, rng: np.random.Generator, duration_s: tuple = (1.0, 1.6)) -> dict:
+def draw_experiment(kind: str, rng: np.random.Generator, duration_s: tuple = (0.6, 1.0)) -> dict:
     """An experiment of ``kind`` as a rig might run it: ``{experiment, duration_s}`` for a
     scenario file (``duration_s`` None when the excitation sets it).
 
@@ -552,7 +552,7 @@ def draw_experiment(kind: str, rng: np.random.Generator, duration_s: tuple = (1.
         res = float(rng.choice([5.0, 10.0]))
         f_min = res * max(1, int(round(float(rng.uniform(5.0, 20.0)) / res)))
         f_max = res * int(round(float(rng.uniform(50.0, 250.0)) / res))
-        periods = max(5, int(round(T * res)))
+        periods = max(4, int(round(T * res)))
         return {"experiment": {"kind": "multisine", "point": "position", "axis": axis,
                                "amplitude_m": float(rng.uniform(10e-6, 60e-6)), "f_min_hz": f_min, "f_max_hz": f_max,
                                "f_resolution_hz": res, "periods": periods, "seed": seed}, "duration_s": None}

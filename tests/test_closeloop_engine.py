@@ -346,3 +346,26 @@ def _amb_model(name: str, hints: dict):
     from ssamb.device import get_device
 
     return get_device("amb").effect_model(name, hints, SimpleNamespace(excited_axes=("x", "y")), Settings())
+
+
+def test_a_parameter_seen_in_one_entry_of_many_is_determined():
+    """A parameter that moves one entry of 2000 by 20 noise units per unit (a static load moving a
+    view's DC), among entries of unit noise that a second parameter moves diffusely: the row-wise
+    analysis determines it (the whole vector's Jacobian noise, sqrt(2N) entries' worth, hides
+    it), and its estimate lies within its standard errors of the truth."""
+    N = 2000
+    rng = np.random.default_rng(4)
+    B = np.zeros((N, 2))
+    B[7, 0] = 20.0
+    B[:, 1] = 3.0 * rng.standard_normal(N) / math.sqrt(N) * 10
+    e_data = rng.standard_normal(N)
+    truth = np.array([0.8, -0.2])
+
+    def evaluate(theta, seed):
+        return B @ (np.asarray(theta) - truth) - e_data + 0.7 * np.random.default_rng(seed).standard_normal(N)
+
+    prob = Problem(("load", "diffuse"), np.zeros(2), np.full(2, np.inf), np.array([0.1, 0.1]), np.full(2, -5.0),
+                   np.full(2, 5.0), evaluate, groups=[np.arange(N)], probe=np.zeros(2, bool))
+    fit = map_fit(prob, EstimateSettings())
+    assert abs(fit.theta[0] - truth[0]) < 3 * fit.se[0] and fit.se[0] < 0.1, (fit.theta, fit.se)
+    assert abs(fit.theta[1] - truth[1]) < 3 * fit.se[1], (fit.theta, fit.se)

@@ -12,7 +12,7 @@ from scipy import signal
 from ssamb.closeloop.features import (Whitener, band_dof, band_plan, features, log_bias, log_var, make_layout,
                                       replicate_factors, scale_views)
 from ssamb.closeloop.spectra import make_frame
-from ssamb.device import Device, EffectModel, FeatureSpec, Record, Replay, log10_p_two_sided
+from ssamb.device import Device, EffectModel, FeatureSpec, Record, Replay
 
 FS = 1000.0
 
@@ -107,13 +107,12 @@ def test_replicate_factors_of_windows_and_bands():
     lay = make_layout(fr, {}, views=("y",), band_views=("y",))
     fs = []
     for _ in range(12):
-        t = np.arange(n)
         slow = np.repeat(rng.standard_normal(lay.n_win), lay.win_len)
         slow = np.concatenate([slow, np.zeros(n - len(slow))])
         x = rng.standard_normal(n) + slow * math.sqrt(3.0 / lay.win_len)
         fs.append(features(lay, {"y": x}))
     fac = replicate_factors(fs)
-    assert len(fac) == 4
+    assert len(fac) == 5
     assert 2.5 < fac[2][0] < 6.0, fac
     assert 0.99 < fac[3][0] < 1.6, fac
     f2 = scale_views(fs[0], *fac)

@@ -25,14 +25,15 @@ import numpy as np
 sys.path.insert(0, sys.argv[1])
 import test_closeloop_effects as T
 from ssamb.config import load_config
+from ssamb.rig import SUITE_EFFECTS, draw_effect, draw_perturbation
 from ssamb.sim.device import record_from_arrays
 from ssamb.sim import simulate
 cfg = load_config()
 out = []
 for k in (1, 2, 5):          # suite draws whose data parted between the two paths before
     rng = np.random.default_rng([T.SEED, 13, k])
-    ov, _ = T.perturbation(rng, cfg)
-    true = T.draw_effect(T.EFFECTS[int(rng.integers(len(T.EFFECTS)))], rng)
+    ov, _ = draw_perturbation(rng, cfg)
+    true = draw_effect(SUITE_EFFECTS[int(rng.integers(len(SUITE_EFFECTS)))], rng)
     seed = int(rng.integers(1, 10_000))
     arrays, meta, _ = T.rig(pathlib.Path(tempfile.mkdtemp()), [true], ov, name=f"d{k}",
                             exc={**T.EXC, "seed": seed}, noise={**T.NOISE, "seed": seed + 1})

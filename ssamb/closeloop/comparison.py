@@ -133,10 +133,12 @@ class Comparison:
         fs, sig, P, lines = record.fs_hz, record.signal, split.n_period, record.lines_hz
         fit_frame = make_frame(fs, split.i0, split.i_fit - split.i0, sig, P, lines)
         hold_frame = make_frame(fs, split.i_fit, split.i_end - split.i_fit, sig, P, lines)
+        dlv = tuple(getattr(dev.features, "device_line_views", ()) or ())
+        dlf = [fl[v] for v in dlv]
         c.fit = Part(fit_frame, make_layout(fit_frame, sig, ripple, dev.cost_views, device=dev, floor=floor,
-                                            exclude_hz=ripple), None)
+                                            exclude_hz=ripple, dl_views=dlv, dl_floor=dlf), None)
         c.hold = Part(hold_frame, make_layout(hold_frame, sig, ripple, dev.cost_views, device=dev, floor=floor,
-                                              exclude_hz=ripple), None)
+                                              exclude_hz=ripple, dl_views=dlv, dl_floor=dlf), None)
         c._measure()
         return c
 
@@ -176,10 +178,19 @@ class Comparison:
 
         The per-view factors of the replicates' spread (single replays, fitting part) scale the
         off-grid covariance of the mean of the replays.
+
+        A part without a periodic excitation reads the data's noise off the residual of the data
+        from that mean (:meth:`_residual_noise`), not off the data alone: the response to a
+        random excitation leaks across Welch segments (a pulse's tail into the next segment),
+        deterministic content the data and the model share, which the regression on the
+        excitation per segment counts as noise.
         """
         self._nominal = {"overrides": overrides, "effects": tuple(effects)}
         runs = [self.device.views(r) for r in self.replay.runs(effects, None, overrides, self.seeds)]
         mean = {v: np.mean([r[v] for r in runs], axis=0) for v in runs[0]}
+        if not self.fit.frame.periodic or not self.hold.frame.periodic:
+            self._measure()
+            self._residual_noise(mean, len(runs))
         ones = (np.ones(len(self.device.cost_views)), np.ones(len(self.device.cost_views)))
         fac_fit = replicate_factors([features(self.fit.layout, r) for r in runs]) if len(runs) >= 3 else None
         for part in (self.fit, self.hold):
@@ -192,6 +203,23 @@ class Comparison:
                 fm = scale_views(fm, *fac)
             part.model_factors = fac or ()
             part.whitener = Whitener.build(part.layout, part.data, fm)
+
+    def _residual_noise(self, mean: dict, m: int) -> None:
+        r"""The data's noise of a part without a periodic excitation, from the residual of the data
+        from the mean of ``m`` replays: its covariances (DC, cross-spectra, lines, windows) hold the
+        data's noise and the mean's, :math:`(1 + 1/m)` times the data's when the rig and a replay
+        are alike; the data's bands keep their own (log densities of the data itself)."""
+        import dataclasses
+
+        meas = self.device.views(self.record.channels)
+        res = {v: meas[v] - mean[v] for v in mean}
+        k = m / (m + 1.0)
+        for part in (self.fit, self.hold):
+            if part.frame.periodic:
+                continue
+            fr = features(part.layout, res, self.floor)
+            part.data = dataclasses.replace(part.data, cov_dc=fr.cov_dc * k, cov_bins=fr.cov_bins * k,
+                                            cov_lines=fr.cov_lines * k, cov_win=fr.cov_win * k, cov_dl=fr.cov_dl * k)
 
     def model_features(self, part: Part, channels: dict) -> Features:
         """Feature values of model channels (views or channels) over a part (no noise: the
@@ -252,7 +280,7 @@ class Comparison:
         special = {k: set(g[k].tolist()) for k in ("dc", "win", "band")}
         other = set().union(*special.values())
         out = []
-        for v in part.layout.views:
+        for v in part.layout.all_views:
             idx = g.get("view:" + v, np.zeros(0, int))
             out.append(np.array([i for i in idx if i not in other], int))
             out.append(np.array([i for i in idx if i in special["dc"]], int))

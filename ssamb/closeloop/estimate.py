@@ -37,7 +37,8 @@ standard errors off). This module therefore never compares single evaluations:
    (:func:`_margin`); a rejected trial's runs stay in the pool and inform :math:`B` along the step.
 6. **Replicate** the pairs at the same centre when the step is at the noise level but some
    direction looks informative while its Jacobian is still noise (a weakly determined valley
-   between two parameters needs them).
+   between two parameters needs them). A direction a few entries determine (a DC offset)
+   is found row by row (:func:`_concentrated`).
 7. **Stop** when the step is at the noise level, :math:`\sqrt{d^T H d / p} <` ``tol`` with
    :math:`H = \hat{\mathcal I} + \Lambda` the posterior precision (the natural metric: a step
    along a weakly determined valley is measured against the valley's own uncertainty), or after
@@ -46,6 +47,8 @@ standard errors off). This module therefore never compares single evaluations:
    noise the final centre's replicates show (the rig is one more replay), the prior elsewhere,
    and what the prior's spread there does to the rest. When the iterations ran out first the
    estimate is the last centre, and the last step :math:`d d^T` joins its covariance.
+8. **Probe** a parameter that may be probed (an effect's size) and that no determined direction
+   holds: its step grows and the pairs are redone at the same centre (``probe_growth``).
 
 :func:`map_fit` knows nothing of the device: it evaluates a callable ``(theta, seed) -> r``.
 """
@@ -93,6 +96,13 @@ class EstimateSettings:
         still below ``min_snr`` after two is weak enough to stay at its prior (measured: without
         the cap a calibration replicated five times in a row for one direction, 160 replays, and
         its estimate did not move).
+    probe_growth, max_probes : float, int
+        A parameter that may be probed (:attr:`Problem.probe`: an effect's size) and lies in no
+        determined direction has its finite-difference step multiplied by ``probe_growth`` and the
+        pairs redone at the same centre, at most ``max_probes`` times (step 8). The noise of the
+        Jacobian spreads over all N entries of the residual, its signal may sit in a few (a static
+        load moves the DC entries of the currents): the signal-to-noise ratio of the column grows
+        with the square of the step, and an effect linear in its size loses nothing by a wide one.
     """
 
     centre_runs: int = 4
@@ -106,6 +116,8 @@ class EstimateSettings:
     min_snr: float = 4.0
     max_trust: float = 16.0
     max_replicates: int = 2
+    probe_growth: float = 4.0
+    max_probes: int = 2
 
 
 @dataclass
@@ -135,6 +147,9 @@ class Problem:
     evaluate_many : callable, optional
         ``[(theta, seed), ...] -> [r, ...]``: a batch of independent evaluations (a design's
         runs), e.g. on several processes; default ``evaluate`` in turn.
+    probe : numpy.ndarray of bool, optional
+        Parameters whose step may grow when no determined direction holds them
+        (:class:`EstimateSettings` ``probe_growth``); default: those without a prior.
     """
 
     names: tuple
@@ -148,6 +163,7 @@ class Problem:
     seed0: int = 1
     groups: list | None = None
     evaluate_many: Callable | None = None
+    probe: np.ndarray | None = None
 
     def batch(self, tasks: list) -> list:
         """Evaluate ``[(theta, seed), ...]`` (:attr:`evaluate_many` when given)."""
@@ -282,6 +298,78 @@ def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "Estima
     return info, keep, pending
 
 
+def _concentrated(B: np.ndarray, noise: np.ndarray, rho_rows: np.ndarray, scale: np.ndarray, keep: np.ndarray,
+                  s: "EstimateSettings", prior_sd: np.ndarray, alpha: float = 0.01):
+    r"""Directions a few entries of the residual determine, which the whole-vector analysis of
+    :func:`_information` misses; and the Jacobian and its noise with them.
+
+    The noise of :math:`\hat B` is spread over all :math:`N` entries, while a parameter's signal
+    may sit in a few (a static load and a calibration offset move the DC entries of a handful of
+    views, an unbalance a line): its signal then drowns in the others' noise in
+    :math:`\hat B^T\hat B` (the errors-in-variables correction subtracts that noise's mean, not its
+    spread of :math:`\sqrt{2N}` times an entry's). Each row :math:`i` of :math:`\hat B` is tested,
+    :math:`t_i^2 = \hat B_i (\rho_i P)^{-1} \hat B_i^T` against :math:`\chi^2_p` at ``alpha``
+    over the rows (Bonferroni; :math:`\rho_i P` the row's noise covariance, :math:`\rho_i` its
+    group's replay variance); the rows that pass, :math:`T`, are analysed alone as
+    :func:`_information` analyses all. Their determined directions outside the span of ``keep``
+    join it, and along them the other rows, noise there, are left out of the Jacobian (and of
+    its noise): :math:`\hat B_{\bar T} (I - \Pi)` with :math:`\Pi` the projector on the new
+    directions (scaled coordinates).
+
+    Returns ``(keep, B, noise)``, unchanged when no row passes or nothing new is determined.
+    """
+    from scipy import stats
+
+    N, p = B.shape
+    rho = float(np.mean(rho_rows)) if len(rho_rows) else 0.0
+    if p == 0 or rho <= 0:
+        return keep, B, noise
+    P = noise / (N * rho)
+    try:
+        Pinv = np.linalg.inv(0.5 * (P + P.T))
+    except np.linalg.LinAlgError:
+        return keep, B, noise
+    t2 = np.einsum("ij,jk,ik->i", B, Pinv, B) / np.maximum(rho_rows, 1e-300)
+    T = t2 > stats.chi2.isf(alpha / N, p)
+    if not T.any() or T.all():
+        return keep, B, noise
+    S = np.outer(scale, scale)
+    NnT = float(np.sum(rho_rows[T])) * P
+    _, keepT, _ = _information(B[T], NnT, scale, s, prior_sd)
+    if keepT.shape[1] == 0:
+        return keep, B, noise
+    QG, _ = _basis(keep, p)
+    R = keepT / np.linalg.norm(keepT, axis=0)
+    R = R - QG @ (QG.T @ R)
+    new = R[:, np.linalg.norm(R, axis=0) > 0.5]
+    if new.shape[1] == 0:
+        return keep, B, noise
+    Qn, _ = _basis(new, p)
+    Pi = Qn @ Qn.T
+    I = np.eye(p)
+    Bs = B * scale
+    Bs[~T] = Bs[~T] @ (I - Pi)
+    NnR = float(np.sum(rho_rows[~T])) * (P * S)
+    noise_eff = (NnT * S + (I - Pi) @ NnR @ (I - Pi)) / S
+    keep_out = np.concatenate([keep, new / np.sqrt(np.maximum(np.einsum("ij,jk,ki->i", new.T, NnT * S, new), 1e-300))],
+                              axis=1)
+    return keep_out, Bs / scale, noise_eff
+
+
+def _row_noise(C: np.ndarray, groups, rho: float) -> np.ndarray:
+    """Per entry of the residual, the variance of one replay (the centre runs ``C``), pooled over
+    its group (the groups' means; ``rho`` when there are too few runs)."""
+    n = C.shape[1]
+    if len(C) < 2:
+        return np.full(n, rho)
+    v = C.var(axis=0, ddof=1)
+    out = np.full(n, float(np.mean(v)))
+    for g in groups or []:
+        if len(g):
+            out[g] = float(np.mean(v[g]))
+    return out
+
+
 def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings, trust: float) -> np.ndarray:
     """The Gauss-Newton step on the surrogate (with prior), restricted to the kept directions
     (:func:`_information`), shortened to the bounds and the trust region.
@@ -372,6 +460,18 @@ def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: 
             if np.any(t != theta):
                 tasks.append((t, base + j))
     runs.extend(zip([t for t, _ in tasks], prob.batch(tasks)))
+
+
+def _unseen(prob: Problem, keep: np.ndarray, growth: float = 4.0) -> np.ndarray:
+    """The parameters that may be probed (:attr:`Problem.probe`) of which the determined directions
+    ``keep`` (scaled coordinates) hold less than half, and whose grown step still fits a quarter
+    of their range."""
+    p = len(prob.step)
+    probe = np.isinf(np.asarray(prob.prior_sd, float)) if prob.probe is None else np.asarray(prob.probe, bool)
+    Q, _ = _basis(keep, p)
+    held = np.sum(Q ** 2, axis=1)
+    room = np.asarray(prob.step, float) * growth <= 0.25 * (np.asarray(prob.upper, float) - np.asarray(prob.lower, float))
+    return probe & (held < 0.5) & room
 
 
 def _margin(n: int, q: float) -> float:
@@ -539,10 +639,33 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     C = _centre(prob, theta, 0, s, runs)
     _pairs(prob, theta, 0, s, runs)
     rhos = [float(np.mean(C.var(axis=0, ddof=1)))] if len(C) > 1 else [0.0]
-    a, trust, k, history, converged, replicates = C.mean(axis=0), 1.0, 0, [], False, 0
+    a, trust, k, history, converged, replicates, probes = C.mean(axis=0), 1.0, 0, [], False, 0, 0
+    prob.step = np.asarray(prob.step, float).copy()
+    d = np.zeros(len(theta))
     for it in range(s.max_iter):
         B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, float(np.mean(rhos)))
         info, keep, pending = _information(B, noise, _scale(prob), s, prob.prior_sd)
+        n_global = keep.shape[1]
+        keep, B, noise = _concentrated(B, noise, _row_noise(C, prob.groups, float(np.mean(rhos))), _scale(prob),
+                                       keep, s, prob.prior_sd)
+        if keep.shape[1] > n_global:
+            info = _psd((B.T @ B - noise) * np.outer(_scale(prob), _scale(prob))) / np.outer(_scale(prob), _scale(prob))
+            if log is not None:
+                log(f"  {keep.shape[1] - n_global} direction(s) determined by a few entries of the residual")
+        grow = _unseen(prob, keep, s.probe_growth) if probes < s.max_probes and it < s.max_iter - 1 \
+            else np.zeros(len(theta), bool)
+        if grow.any():
+            # a size no determined direction holds: probe it with a wider step (EstimateSettings)
+            probes += 1
+            prob.step[grow] *= s.probe_growth
+            k += 1
+            _pairs(prob, theta, k, s, runs)
+            history.append({"iteration": it, "probe": [prob.names[i] for i in np.flatnonzero(grow)],
+                            "step_grown_to": prob.step[grow].tolist()})
+            if log is not None:
+                log(f"iteration {it}: {', '.join(prob.names[i] for i in np.flatnonzero(grow))} in no determined "
+                    f"direction: steps x{s.probe_growth:g}, pairs again")
+            continue
         d = _solve_step(a, B, info, keep, lam, theta, prob, s, trust)
         H = info + np.diag(lam)
         norm = float(np.sqrt(max(d @ H @ d, 0.0) / len(d)))

@@ -97,6 +97,10 @@ class Layout:
     band_floor : tuple
         Per band view, the smallest one-sided density assumed (the view's noise floor as white
         noise): a channel without noise would otherwise give the log of zero.
+    dl_views, dl_hz, dl_floor : tuple
+        Views compared at the device's own lines only (``dl`` features,
+        :attr:`ssamb.device.FeatureSpec.device_line_views`), those lines, and the views' noise
+        floors per sample.
     """
 
     frame: Frame
@@ -113,6 +117,9 @@ class Layout:
     bands: tuple = field(default=(), repr=False)
     band_nper: int = 0
     band_floor: tuple = ()
+    dl_views: tuple = ()
+    dl_hz: tuple = ()
+    dl_floor: tuple = ()
 
     @property
     def f_bins_hz(self) -> np.ndarray:
@@ -123,6 +130,12 @@ class Layout:
     def f_bands_hz(self) -> np.ndarray:
         """Centre frequency of each band (mean of its bins' frequencies)."""
         return np.array([float(np.mean(b)) * self.frame.fs_hz / self.band_nper for b in self.bands])
+
+    @property
+    def all_views(self) -> tuple:
+        """Every view with entries in the whitened vector: the compared views, then those compared
+        at the device's lines only."""
+        return tuple(self.views) + tuple(self.dl_views)
 
     @property
     def t_win_s(self) -> np.ndarray:
@@ -138,7 +151,7 @@ class Layout:
 
 
 def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: int = 64, device=None,
-                band_views=None, floor=None, exclude_hz=()) -> Layout:
+                band_views=None, floor=None, exclude_hz=(), dl_views=(), dl_floor=None) -> Layout:
     """The feature layout of ``frame``.
 
     Parameters
@@ -160,12 +173,19 @@ def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: in
         Per view of ``views``, the smallest noise level per sample (the bands' floor).
     exclude_hz : sequence of float
         Frequencies the bands leave out (the device's own lines).
+    dl_views, dl_floor : sequences
+        Views compared at the device's own lines (``exclude_hz``) only, and their noise floors
+        per sample.
     """
     if band_views is None:
         band_views = tuple(getattr(getattr(device, "features", None), "band_views", ()) or ())
     band_views = tuple(v for v in views if v in band_views)
     fl = dict(zip(views, np.zeros(len(views)) if floor is None else np.asarray(floor, float)))
     extra = {}
+    dl_hz = tuple(float(f) for f in exclude_hz if 0 < f < frame.fs_hz / 2 - frame.df_hz)
+    if dl_views and dl_hz:
+        extra.update(dl_views=tuple(dl_views), dl_hz=dl_hz,
+                     dl_floor=tuple(np.zeros(len(dl_views)) if dl_floor is None else np.asarray(dl_floor, float)))
     if band_views:
         bnper = _welch_length(frame.n)
         bands = band_plan(frame, signals, bnper, exclude_hz)
@@ -342,7 +362,8 @@ class Features:
     ``dc`` (V,), ``bins`` (K, V) or (A, K, V) for Welch frames, ``lines`` (L, V) complex, each
     with its noise covariance ``cov_dc`` (V, V), ``cov_bins`` (K, V, V) or (A, K, V, V),
     ``cov_lines`` (L, V, V); ``win`` (W-1, V) and ``band`` (B, Vb) real, with ``cov_win``
-    (W-1, V, V) and ``cov_band`` (B, Vb, Vb). ``factors`` are the per-view ``(bins, dc)``
+    (W-1, V, V) and ``cov_band`` (B, Vb, Vb); ``dl`` (Ld, Vd) complex at the device's lines with
+    ``cov_dl`` (Ld, Vd, Vd). ``factors`` are the per-view ``(bins, dc)``
     factors applied to the off-grid covariances (:func:`_period_factors`), to reuse on another
     segment of the record (``(bins, dc, win, band)`` after :func:`scale_views`).
     """
@@ -358,6 +379,8 @@ class Features:
     cov_win: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
     band: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     cov_band: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    dl: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), complex))
+    cov_dl: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0), complex))
 
 
 def _stack(layout: Layout, ch: dict, seg: slice) -> np.ndarray:
@@ -418,10 +441,12 @@ def _period_factors(layout: Layout, x: np.ndarray, diag_bins: np.ndarray, diag_d
     return fac, fac_dc
 
 
-def scale_views(f: "Features", fac_bins: np.ndarray, fac_dc: np.ndarray, fac_win=None, fac_band=None) -> "Features":
+def scale_views(f: "Features", fac_bins: np.ndarray, fac_dc: np.ndarray, fac_win=None, fac_band=None,
+                fac_dl=None) -> "Features":
     r"""The features with their noise covariances scaled per view (``C -> D C D``,
     :math:`D = \mathrm{diag}\sqrt{\mathrm{fac}}`; lines take the bins' factors, windows the DC's
-    unless given; ``fac_band`` is per band view)."""
+    unless given; ``fac_band`` is per band view, ``fac_dl`` per view compared at the device's
+    lines)."""
     import dataclasses
 
     fac_win = fac_dc if fac_win is None else fac_win
@@ -430,9 +455,13 @@ def scale_views(f: "Features", fac_bins: np.ndarray, fac_dc: np.ndarray, fac_win
     if f.cov_band.size and fac_band is not None:
         b = np.sqrt(np.asarray(fac_band, float))
         kw["cov_band"] = f.cov_band * b[:, None] * b[None, :]
-    factors = (np.asarray(fac_bins), np.asarray(fac_dc)) if fac_band is None and f.cov_win.size == 0 and \
-        f.cov_band.size == 0 else (np.asarray(fac_bins), np.asarray(fac_dc), np.asarray(fac_win),
-                                   None if fac_band is None else np.asarray(fac_band))
+    if f.cov_dl.size and fac_dl is not None:
+        b = np.sqrt(np.asarray(fac_dl, float))
+        kw["cov_dl"] = f.cov_dl * b[:, None] * b[None, :]
+    more = f.cov_win.size or f.cov_band.size or f.cov_dl.size or fac_band is not None or fac_dl is not None
+    factors = (np.asarray(fac_bins), np.asarray(fac_dc)) if not more else \
+        (np.asarray(fac_bins), np.asarray(fac_dc), np.asarray(fac_win), None if fac_band is None else np.asarray(fac_band),
+         None if fac_dl is None else np.asarray(fac_dl))
     return dataclasses.replace(f, cov_bins=f.cov_bins * d[:, None] * d[None, :],
                                cov_lines=f.cov_lines * d[:, None] * d[None, :], cov_dc=f.cov_dc * np.outer(e, e),
                                cov_win=f.cov_win * w[:, None] * w[None, :] if f.cov_win.size else f.cov_win,
@@ -447,15 +476,16 @@ def replicate_factors(fs: list) -> tuple:
     the replicates' variance over the predicted one. Never below 1: a replay's own noise is at
     least what its off-grid bins show (the self-sensing estimator's pseudo-noise and the
     current loops' drift add to it at the lines and at DC). Windows and bands (real entries)
-    likewise, over :math:`\chi^2_{m-1}/(m-1)`. Returns ``(bins, dc)``, or ``(bins, dc, win,
-    band)`` when the features have windows or bands.
+    likewise, over :math:`\chi^2_{m-1}/(m-1)`; the device's lines (complex) as the bins. Returns
+    ``(bins, dc)``, or ``(bins, dc, win, band, dl)`` when the features have windows, bands or
+    device-line views.
     """
     m = len(fs)
     nv = fs[0].dc.shape[-1]
-    has_more = fs[0].win.size > 0 or fs[0].band.size > 0
+    has_more = fs[0].win.size > 0 or fs[0].band.size > 0 or fs[0].dl.size > 0
     if m < 3:
         one = np.ones(nv)
-        return (one, one, one, np.ones(fs[0].band.shape[-1])) if has_more else (one, one)
+        return (one, one, one, np.ones(fs[0].band.shape[-1]), np.ones(fs[0].dl.shape[-1])) if has_more else (one, one)
     B = np.array([f.bins for f in fs])
     emp = np.sum(np.abs(B - B.mean(axis=0)) ** 2, axis=0) / (m - 1)
     pred = np.mean([np.real(np.einsum("...vv->...v", f.cov_bins)) for f in fs], axis=0)
@@ -478,7 +508,15 @@ def replicate_factors(fs: list) -> tuple:
         return np.maximum(np.median(e / np.maximum(p, 1e-300), axis=0) / med1, 1.0)
     fac_win = real_factor(np.array([f.win for f in fs]), [f.cov_win for f in fs], nv)
     fac_band = real_factor(np.array([f.band for f in fs]), [f.cov_band for f in fs], fs[0].band.shape[-1])
-    return fac, fac_dc, fac_win, fac_band
+    nd = fs[0].dl.shape[-1]
+    if fs[0].dl.size:
+        L = np.array([f.dl for f in fs])
+        e = np.sum(np.abs(L - L.mean(axis=0)) ** 2, axis=0) / (m - 1)
+        p = np.mean([np.real(np.einsum("kvv->kv", f.cov_dl)) for f in fs], axis=0)
+        fac_dl = np.maximum(np.median(e / np.maximum(p, 1e-300), axis=0) / med, 1.0)
+    else:
+        fac_dl = np.ones(nd)
+    return fac, fac_dc, fac_win, fac_band, fac_dl
 
 
 def _line_components(frame: Frame, x: np.ndarray, lines_hz) -> np.ndarray:
@@ -580,7 +618,32 @@ def features(layout: Layout, ch: dict, floor=None, factors: tuple | None = None,
         extra["band"] = vals
         if noise:
             extra["cov_band"] = cov
+    if layout.dl_views:
+        xd = np.stack([np.asarray(ch[v], float)[seg] for v in layout.dl_views])
+        extra["dl"] = line_phasors(fr, xd, layout.dl_hz)
+        if noise:
+            extra["cov_dl"] = _dl_noise(layout, xd)
     return dataclasses.replace(f, **extra) if extra else f
+
+
+def _dl_noise(layout: Layout, xd: np.ndarray) -> np.ndarray:
+    """Noise covariance of the ``dl`` phasors: the band covariance of the neighbouring bins that
+    carry no deterministic response (off-grid of a periodic frame; the Hann-tapered DFT's band
+    otherwise, scaled to a rectangular fit's phasor), plus the views' floors as white noise."""
+    fr = layout.frame
+    fl2 = np.asarray(layout.dl_floor, float) ** 2
+    if fr.periodic:
+        X = sfft.rfft(xd, axis=1)
+        usable = fr.noise_mask.copy()
+        usable[0] = False
+        C = _band_cov(X, usable)
+        scale = 1.0
+    else:
+        X = sfft.rfft(xd * fr.window, axis=1)
+        C = _band_cov(X, np.ones(X.shape[1], bool))
+        scale = fr.n / fr.w2
+    kl = [min(int(round(f / fr.df_hz)), X.shape[1] - 1) for f in layout.dl_hz]
+    return C[kl] * scale + np.diag(fr.n * fl2)[None]
 
 
 def _values(layout: Layout, x: np.ndarray, seg: slice) -> Features:
@@ -717,8 +780,8 @@ class Whitener:
     direction an enormous weight).
 
     The vector is ``[dc (V), Re/Im of bins (2 x K x V), Re/Im of lines (2 x L x V), win ((W-1) x
-    V), band (B x Vb)]``, with the complex parts scaled by :math:`\sqrt 2` (each has half the
-    variance).
+    V), band (B x Vb), Re/Im of dl (2 x Ld x Vd)]``, with the complex parts scaled by
+    :math:`\sqrt 2` (each has half the variance).
     """
 
     W_dc: np.ndarray
@@ -727,6 +790,7 @@ class Whitener:
     labels: list
     W_win: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
     W_band: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)))
+    W_dl: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0), complex))
 
     @classmethod
     def build(cls, layout: Layout, fa: Features, fb: Features | None = None, ridge: float = 1e-3) -> "Whitener":
@@ -744,7 +808,9 @@ class Whitener:
         W_win = np.array([_whitening(c, ridge) for c in cw]).reshape(cw.shape)
         cd = tot(fa.cov_band, None if fb is None else fb.cov_band)
         W_band = np.array([_whitening(c, ridge) for c in cd]).reshape(cd.shape)
-        return cls(W_dc, W_bins, W_lines, _labels(layout, cb.shape), W_win, W_band)
+        cdl = tot(fa.cov_dl, None if fb is None else fb.cov_dl)
+        W_dl = np.array([_whitening(c, ridge) for c in cdl]).reshape(cdl.shape)
+        return cls(W_dc, W_bins, W_lines, _labels(layout, cb.shape), W_win, W_band, W_dl)
 
     def residual(self, fa: Features, fb: Features) -> np.ndarray:
         """Whitened ``fa - fb`` (see class docstring)."""
@@ -759,13 +825,16 @@ class Whitener:
             out.append(np.real(np.einsum("kij,kj->ki", self.W_win, fa.win - fb.win)).ravel())
         if len(self.W_band):
             out.append(np.real(np.einsum("kij,kj->ki", self.W_band, fa.band - fb.band)).ravel())
+        if len(self.W_dl):
+            wd = np.einsum("lij,lj->li", self.W_dl, fa.dl - fb.dl).ravel()
+            out += [math.sqrt(2) * wd.real, math.sqrt(2) * wd.imag]
         return np.concatenate(out)
 
     def groups(self) -> dict:
-        """Index arrays of the vector per group: ``dc``, ``bins``, ``lines``, ``win``, ``band`` and
-        per view."""
+        """Index arrays of the vector per group: ``dc``, ``bins``, ``lines``, ``win``, ``band``,
+        ``dl`` and per view."""
         lab = self.labels
-        out = {"dc": [], "bins": [], "lines": [], "win": [], "band": []}
+        out = {"dc": [], "bins": [], "lines": [], "win": [], "band": [], "dl": []}
         for i, (g, v, _f) in enumerate(lab):
             out[g].append(i)
             out.setdefault("view:" + v, []).append(i)
@@ -790,4 +859,6 @@ def _labels(layout: Layout, bins_shape) -> list:
         lab += [("lines", v, float(fl)) for fl in layout.lines_hz for v in views]
     lab += [("win", v, float(j)) for j in range(1, layout.n_win) for v in views]
     lab += [("band", v, float(fb)) for fb in layout.f_bands_hz for v in layout.band_views]
+    for part in (0, 1):
+        lab += [("dl", v, float(fl)) for fl in layout.dl_hz for v in layout.dl_views]
     return lab

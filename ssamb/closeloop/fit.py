@@ -17,7 +17,9 @@ is at most standard normal when the base is right (its mean is :math:`-\|\delta\
 noiseless prediction and about 0 when :math:`\delta` is the predictions' own noise), and large
 when the candidate explains what the base missed: a one-sided test. Per view, the share of the
 residual excess over the noise (:math:`\chi^2_v - n_v`) that the candidate removes is averaged
-over the views that stood clearly above the noise (:math:`\chi^2_v >` ``above_noise`` :math:`n_v`);
+over the views that stood clearly above the noise (:math:`\chi^2_v >` ``above_noise`` :math:`n_v`, or
+a chi-square significant at ``alpha_noise`` over the views: a view's excess can be significant
+and much smaller than its entries);
 a view is made worse when its :math:`\chi^2` grows by more than ``worse_sigma`` standard
 deviations of the difference of two noisy predictions' :math:`\chi^2`. With :math:`\bar r` the
 view's expected residual and :math:`e_0, e_1` the predictions' unit-variance noise,
@@ -32,13 +34,14 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from ..errors import InputError
 from .comparison import Comparison, Part
 from .estimate import EstimateSettings, MapFit, Problem, map_fit
 from .models import EffectModel, combine
 
-__all__ = ["Base", "Candidate", "fit_candidate", "holdout_score", "chi2_views"]
+__all__ = ["Base", "Candidate", "fit_candidate", "holdout_score", "chi2_views", "size_mask"]
 
 
 @dataclass
@@ -46,12 +49,13 @@ class Base:
     """The model a candidate is added to: parameter overrides, effects, and its prediction.
 
     ``free`` are calibrated parameters (:class:`~ssamb.closeloop.calibration.ParameterSpec`)
-    refitted with every candidate from their values ``theta_free`` (tolerance units of the
-    specs): an effect whose signature a parameter shares (a static load in y and the rotor's
-    weight) is fitted with it, not on a base that has already absorbed part of it. ``spare``
-    are the other calibrated parameters (not identified), at ``theta_spare``: a combination of
-    them can still have absorbed part of an effect, so a candidate that fails only by making a
-    view worse is refitted with them free too (:meth:`widened`).
+    refitted with every candidate, starting from ``theta_free`` (tolerance units of the specs):
+    an effect whose signature a parameter shares (a static load in y and the rotor's weight) is
+    fitted with it, not on a base that has already absorbed part of it. ``spare`` are
+    calibrated parameters held at ``theta_spare`` in a candidate's first fit and freed in a
+    second (:meth:`widened`). ``shown`` is the model whose residual the evidence reads, when it
+    is not this one (the calibrated model with its conflicting parameters at nominal: the
+    signature of what they absorbed shows there).
     """
 
     overrides: dict
@@ -61,6 +65,7 @@ class Base:
     theta_free: np.ndarray = field(default_factory=lambda: np.zeros(0))
     spare: list = field(default_factory=list)
     theta_spare: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    shown: "Base | None" = field(default=None, repr=False)
 
     def widened(self) -> "Base":
         """The same model with the spare parameters free as well (listed after the free ones)."""
@@ -116,7 +121,8 @@ def _scaled(cmp: Comparison, part: Part, base: Base, pred: dict, overrides: dict
 def chi2_views(cmp: Comparison, part: Part, r: np.ndarray) -> dict:
     """Per view, ``(chi2, n)`` of a whitened residual (its DC entry included)."""
     g = part.whitener.groups()
-    return {v: (float(np.sum(r[g["view:" + v]] ** 2)), len(g["view:" + v])) for v in part.layout.views if "view:" + v in g}
+    return {v: (float(np.sum(r[g["view:" + v]] ** 2)), len(g["view:" + v])) for v in part.layout.all_views
+            if "view:" + v in g}
 
 
 def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effects: list, n_params: int,
@@ -134,7 +140,8 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
         (x0, n), (x1, _) = c0[v], c1[v]
         frac = (x0 - x1) / (x0 - n) if x0 > n else 0.0
         per_view[v] = {"chi2_before": x0, "chi2_after": x1, "n": n, "explained": frac}
-        if x0 > settings.above_noise * n:
+        # clearly above the noise: many times its entries, or significantly above them
+        if x0 > settings.above_noise * n or stats.chi2.sf(x0, n) < settings.alpha_noise / len(c0):
             fracs.append(frac)
         if x1 - x0 > settings.worse_sigma * math.sqrt(4 * n + 8 * max(x0, n)):
             worse.append(v)
@@ -164,8 +171,15 @@ def _problem(cmp: Comparison, base: Base, model: EffectModel, seed0: int, step_r
                    prior_sd=cat(cp.prior_sd if k else [], np.full(len(model.params), np.inf)),
                    step=cat(cp.step if k else [], model.step), lower=cat(cp.lower if k else [], model.lower),
                    upper=cat(cp.upper if k else [], model.upper), evaluate=cmp.evaluator(cmp.fit, build),
-                   evaluate_many=cmp.evaluate_many(cmp.fit, build), start=cat(base.theta_free, model.theta0), seed0=seed0, groups=cmp.groups(cmp.fit))
+                   evaluate_many=cmp.evaluate_many(cmp.fit, build), start=cat(base.theta_free, model.theta0), seed0=seed0,
+                   groups=cmp.groups(cmp.fit), probe=np.concatenate([np.zeros(k, bool), size_mask(model)]))
     return prob, build
+
+
+def size_mask(model: EffectModel) -> np.ndarray:
+    """Which of an effect model's parameters measure its size (:attr:`EffectModel.size_params`; all
+    when None): those the estimator may probe with a wider step."""
+    return np.array([model.size_params is None or p in model.size_params for p in model.params], bool)
 
 
 def _coarse_start(prob, model, k: int) -> np.ndarray:

@@ -7,8 +7,11 @@ r"""The 2-DOF self-sensing AMB as a close-the-loop device (:class:`ssamb.device.
 * **Views**: positions (``x_meas``, ``y_ss``, ``y_meas``), the differential and common-mode coil
   currents :math:`d_x = (i_{xpos} - i_{xneg})/2`, :math:`c_x = (i_{xpos} + i_{xneg})/2` (and y),
   the controller outputs. The cost compares the positions and the currents; the controller
-  outputs, a digital function of the sensed positions, carry nothing the positions do not and
-  their noise is collinear with them.
+  outputs, a digital function of the sensed positions, carry little the positions do not below
+  the PWM band and their noise is collinear with them there, but they are logged without noise:
+  at the PWM carrier's aliased lines they are compared too (``device_line_views``), where their
+  phase carries the loop's timing (a sensor delay) far more precisely than the noisy logged
+  positions.
 * **Replay**: :func:`ssamb.sim.simulate` with the recorded excitation, the data's start state, the
   effects and the data's logging chain applied to the model's channels; the DSP's converters act
   in the loop, seeded: a replay is one realisation of the loop's noise. The self-sensing
@@ -198,7 +201,10 @@ class AMB(Device):
         axis_views={"x": ("x_meas", "d_x", "u_x"), "y": ("y_ss", "y_meas", "d_y", "u_y")},
         counterpart={"x_meas": "y_ss", "d_x": "d_y", "u_x": "u_y", "y_ss": "x_meas", "y_meas": "x_meas",
                      "d_y": "d_x", "u_y": "u_x"},
-        line_views=("d_x", "d_y"), ripple_views=("c_x", "c_y", "d_x", "d_y"), band_views=())
+        line_views=("d_x", "d_y"), ripple_views=("c_x", "c_y", "d_x", "d_y"), band_views=(),
+        # the controller outputs, logged without noise, at the PWM carrier's aliased lines: the
+        # derivative path passes the sensed ripple there, delayed by the loop's own timing
+        device_line_views=("u_x", "u_y"))
     effects_package = "ssamb.sim.effects"
     #: harmonics of the PWM carrier read as device lines
     pwm_harmonics = 8

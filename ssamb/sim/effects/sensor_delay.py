@@ -9,7 +9,7 @@ lines; for y the self-sensing estimate over the evaluation probe, where plant ch
 has a phase lag linear in frequency, :math:`\angle R = -2\pi f\tau`, and a flat gain of 1.
 Evidence: :math:`(\hat\tau/\sigma_\tau)^2` per axis, one-sided.
 
-Fit: :math:`(\tau_x, \tau_y)` for the excited axes, :math:`\tau \ge 0`, started at the ratio's
+Fit: :math:`(\tau_x, \tau_y)` on both axes (excited or not), :math:`\tau \ge 0`, started at the ratio's
 slope.
 """
 from __future__ import annotations
@@ -91,22 +91,32 @@ def claim(ft, hints: dict, df_hz: float, st) -> float:
 
 
 def fit_axes(hints: dict, excited_axes: tuple) -> tuple:
-    """Every excited axis is fitted (an axis without evidence costs one simulation and is left
-    out of the report when its estimate is not significant)."""
-    axes = tuple(a for a in (hints.get("axes") or excited_axes) if a in ("x", "y")) or excited_axes or ("x", "y")
-    return tuple(a for a in ("x", "y") if a in excited_axes or a in axes)
+    """Every sensor axis is fitted, excited or not: an axis the excitation does not drive still
+    closes its loop through the sensor (its noise response, the PWM ripple's aliased lines), and a
+    delay left out there stays in that axis' residual (an axis without evidence costs one
+    parameter, and its estimate is left out of the report when the data do not determine it)."""
+    return ("x", "y")
 
 
 def model(hints: dict, record, st) -> EffectModel | str:
-    excited = tuple(record.excited_axes)
-    if not excited:
-        return "no axis to fit it on: no axis is excited"
-    axes = fit_axes(hints, excited)
+    axes = fit_axes(hints, tuple(record.excited_axes))
     th = np.array([max(float(hints.get("delay_" + a, 0.0)), 0.0) for a in axes])
     return EffectModel(NAME, tuple(f"delay_{a}_s" for a in axes), th, np.maximum(0.2 * th, 5e-6),
                        np.zeros(len(axes)), np.full(len(axes), 2.4e-3),
                        lambda t: [{"name": NAME, "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
-                       {"axes": axes})
+                       {"axes": axes}, _grid(th))
+
+
+def _grid(th: np.ndarray) -> tuple:
+    r"""Coarse starts of a fit: both axes at 5-120 us every 5 us, and each axis alone every 10 us
+    with the other at its hint. The PWM carrier's aliased lines (6.7-40 kHz) turn a delay into
+    phases :math:`2\pi f\tau` of a cycle or more, so the cost has a minimum every few tens of
+    microseconds, and a local fit from a hint far below the truth (the excited lines' slope,
+    blind to a delay of a few microseconds at 26 Hz) stops at the wrong one."""
+    both = [np.array([d, d]) for d in np.arange(5e-6, 121e-6, 5e-6)]
+    one = [np.array([d, th[1]]) for d in np.arange(0.0, 121e-6, 10e-6)] + \
+          [np.array([th[0], d]) for d in np.arange(0.0, 121e-6, 10e-6)]
+    return tuple(both + one)
 
 
 def report(m: EffectModel, theta, se, significant) -> list[dict]:

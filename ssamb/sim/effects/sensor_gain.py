@@ -52,14 +52,10 @@ def claim(ft, hints: dict, df_hz: float, st) -> float:
 
 
 def model(hints: dict, record, st) -> EffectModel | str:
-    excited = tuple(record.excited_axes)
-    if DCM_GAIN_KEY in (st.calibration or {}):
-        excited = tuple(a for a in excited if a == "x")
-    if not excited:
-        return "no axis to fit it on: x is not excited and the y sensor gain is the DCM calibration's own error"
-    hints = dict(hints)
-    hints["axes"] = [a for a in (hints.get("axes") or record.excited_axes) if a in excited]
-    axes = fit_axes(hints, excited)
+    # every sensor axis, excited or not (sensor_delay.fit_axes); a y gain is the DCM calibration's
+    # own error when that is calibrated
+    axes = tuple(a for a in fit_axes(hints, tuple(record.excited_axes))
+                 if not (a == "y" and DCM_GAIN_KEY in (st.calibration or {})))
     th = np.array([float(hints.get("gain_" + a, 1.0)) - 1.0 for a in axes])
     return EffectModel(NAME, tuple(f"gain_{a}_minus_1" for a in axes), th, np.maximum(0.2 * np.abs(th), 1e-2),
                        np.full(len(axes), -0.9), np.full(len(axes), 9.0),
