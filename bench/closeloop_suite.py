@@ -11,7 +11,7 @@ of the draw's kind (``--kinds``; draws cycle through them) with its band, amplit
 axes drawn (:func:`ssamb.rig.draw_experiment`), logged with noise. The analysis
 (:func:`ssamb.closeloop.analyse`, the default settings) sees only the data. A draw **passes** when
 
-1. every reported calibrated parameter is within two standard errors or a third of its
+1. every reported calibrated parameter is within three standard errors or a third of its
    perturbation of the truth the model can see (:func:`ssamb.rig.effective_truth`);
 2. every reported effect is the true one, its parameters within three standard errors or a
    practical tolerance (10 %, a delay 3 us); a true effect not reported is a failure only when the
@@ -145,7 +145,8 @@ def effect_checks(true: list, rep: dict) -> tuple[list, list, list]:
     return fails, cov, missed
 
 
-def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, workers: int = 1) -> dict:
+def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, workers: int = 1,
+             progress: bool = False) -> dict:
     """One draw (module docstring): its experiment, truth, the analysis's findings and the verdict."""
     from scipy import stats
 
@@ -168,10 +169,14 @@ def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, worker
         true = [draw_effect(SUITE_EFFECTS[int(rng.integers(len(SUITE_EFFECTS)))], rng)] if with_effect else []
     noise_seed = int(rng.integers(1, 100_000))
     arrays, meta, scenario = make_rig(tmp, f"d{k}", exp, true, ov, noise_seed)
-    rep, art = _analyse(arrays, meta, cfg, source=f"draw {k}", workers=workers)
+    rep, art = _analyse(arrays, meta, cfg, source=f"draw {k}", workers=workers, progress=progress)
     out = {"draw": k, "kind": kind, "null": null, "experiment": exp, "effect": true, "perturbation": delta,
            "found": [e["name"] for e in rep["effects"]], "effects_found": rep["effects"], "summary": rep["summary"],
-           "unexplained": rep["unexplained"], "simulations": rep["timing"]["simulations"]}
+           "unexplained": rep["unexplained"], "simulations": rep["timing"]["simulations"],
+           "rounds": [{"round": r["round"], "ranking": r["ranking"],
+                       "candidates": [(c["name"], c.get("holdout_z"), c.get("holdout_z_group"), c.get("reasons"))
+                                      for c in r["candidates"]]} for r in rep["rounds"]],
+           "optimum": rep.get("optimum"), "misfit_ratio": rep.get("misfit", {}).get("ratio")}
     # the truth the model can see: a y sensor gain the analysis did not name is the DCM calibration's
     g_true = next((t["gain"] for t in true if t["name"] == "sensor_gain" and t["axis"] in ("y", "both")), 1.0)
     g_found = next((e.get("per_axis", {}).get("y", e["params"])["gain"] for e in rep["effects"]
@@ -183,7 +188,7 @@ def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, worker
         est, se = _relative(cfg, key, p["value"]), _relative(cfg, key, p["se"], se=True)
         err = est - truth[key]
         cov.append({"param": key, "est": est, "se": se, "truth": truth[key], "z": err / se if se > 0 else math.inf})
-        if not (abs(err) <= abs(delta.get(key, truth[key])) / 3 or abs(err) <= 2 * se):
+        if not (abs(err) <= abs(delta.get(key, truth[key])) / 3 or abs(err) <= 3 * se):
             fails.append(f"{key}: estimate {est:+.4g}, truth {truth[key]:+.4g}, se {se:.2g}")
     efails, ecov, missed = effect_checks(true, rep)
     fails += efails
@@ -274,7 +279,8 @@ def summary(out_dir: Path) -> dict:
             d[1] += 1
     res["failing"] = [(r["draw"], r["kind"], r["failures"]) for r in main if r["failures"]]
     res["null_found"] = [(r["draw"], r["kind"], r["found"]) for r in null if r.get("found")]
-    res["null_crashed"] = [(r["draw"], r["failures"]) for r in null if r.get("failures") and "crash" in r["failures"][0]]
+    res["null_crashed"] = [(r["draw"], r["failures"]) for r in null
+                           if r.get("failures") and "crash" in r["failures"][0]]
     return res
 
 
@@ -304,10 +310,19 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1, help="replay workers per analysis")
     ap.add_argument("--out", default="closeloop_suite", help="folder of the per-process JSON lines")
     ap.add_argument("--summary", metavar="DIR", help="print the summary of DIR and exit")
+    ap.add_argument("--one", type=int, metavar="K", help="run draw K alone, with the analysis's progress, and print it")
+    ap.add_argument("--kind", help="with --one: the draw's experiment kind (default: as the suite cycles)")
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.summary:
         print_summary(summary(Path(args.summary)))
+        return
+    if args.one is not None:
+        kinds = args.kinds.split(",")
+        with tempfile.TemporaryDirectory() as tmp:
+            d = run_draw(Path(tmp), args.one, args.kind or kinds[args.one % len(kinds)], args.seed,
+                         args.null > 0, args.workers, progress=True)
+        print(json.dumps(d, default=float, indent=1))
         return
     if args.worker is not None:
         _worker(args)

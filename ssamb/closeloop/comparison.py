@@ -104,6 +104,9 @@ class Comparison:
     fit, hold : Part
     lines_hz : tuple
         Line frequencies read as features.
+    dl_relative : float
+        The model's reproducibility at the device's own lines, relative to a line's amplitude
+        (``device_line_relative`` of the settings), added to the model's noise there.
     """
 
     record: Record
@@ -114,6 +117,7 @@ class Comparison:
     fit: Part = None
     hold: Part = None
     lines_hz: tuple = ()
+    dl_relative: float = 0.0
     _nominal: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -129,7 +133,8 @@ class Comparison:
         ripple = dev.device_lines_hz(replay.cfg, record.fs_hz)
         record = dataclasses.replace(record, device_lines_hz=ripple)
         replay.record = record
-        c = cls(record, split, replay, tuple(int(s) for s in seeds), floor)
+        c = cls(record, split, replay, tuple(int(s) for s in seeds), floor,
+                dl_relative=float(getattr(settings, "device_line_relative", 0.0)))
         fs, sig, P, lines = record.fs_hz, record.signal, split.n_period, record.lines_hz
         fit_frame = make_frame(fs, split.i0, split.i_fit - split.i0, sig, P, lines)
         hold_frame = make_frame(fs, split.i_fit, split.i_end - split.i_fit, sig, P, lines)
@@ -164,13 +169,15 @@ class Comparison:
 
     # -- the model ---------------------------------------------------------------------------
     def prediction(self, overrides=None, effects=(), n: int | None = None) -> dict:
-        """The model's expected channels: the mean of the replays with :attr:`seeds`. When the
-        comparison reads power spectra (``band`` features), the replays' channels too (``runs``):
-        the density of a mean of replays holds only a fraction of their noise."""
+        """The model's expected channels: the mean of the replays with :attr:`seeds`, with the share
+        of them whose body touched a stop (``delevitated_share``). When the comparison reads power
+        spectra (``band`` features), the replays' channels too (``runs``): the density of a mean of
+        replays holds only a fraction of their noise."""
         out = self.replay.mean(effects, n, overrides, self.seeds)
+        runs = self.replay.runs(effects, n, overrides, self.seeds)
+        out["delevitated_share"] = float(np.mean([bool(r["delevitated"]) for r in runs]))
         if self.fit is not None and (self.fit.layout.bands or self.hold.layout.bands):
-            out["runs"] = [{c: r[c] for c in self.device.channels}
-                           for r in self.replay.runs(effects, n, overrides, self.seeds)]
+            out["runs"] = [{c: r[c] for c in self.device.channels} for r in runs]
         return out
 
     def calibrate_noise(self, overrides=None, effects=()) -> None:
@@ -201,6 +208,12 @@ class Comparison:
             fm = features(part.layout, mean, factors=ones, runs=runs)
             if fac is not None:
                 fm = scale_views(fm, *fac)
+            if fm.dl.size and self.dl_relative > 0:
+                # the model's reproducibility at the device's lines, relative to their amplitude
+                import dataclasses
+
+                extra = (self.dl_relative * np.abs(fm.dl)) ** 2
+                fm = dataclasses.replace(fm, cov_dl=fm.cov_dl + np.einsum("lv,vw->lvw", extra, np.eye(extra.shape[1])))
             part.model_factors = fac or ()
             part.whitener = Whitener.build(part.layout, part.data, fm)
 
@@ -276,14 +289,18 @@ class Comparison:
         (a replay's random state -- hysteresis, the current loops' integrators, intermittent duty
         saturation -- moves DC far more than the within-record noise shows), its windows (slow
         trends: the same), its bands (log densities) and its other entries."""
+        return list(self.named_groups(part).values())
+
+    def named_groups(self, part: Part) -> dict:
+        """:meth:`groups` by name, ``view:kind`` (kind ``dc``, ``win``, ``band`` or ``lines`` for
+        the excited lines and line features)."""
         g = part.whitener.groups()
         special = {k: set(g[k].tolist()) for k in ("dc", "win", "band")}
         other = set().union(*special.values())
-        out = []
+        out = {}
         for v in part.layout.all_views:
             idx = g.get("view:" + v, np.zeros(0, int))
-            out.append(np.array([i for i in idx if i not in other], int))
-            out.append(np.array([i for i in idx if i in special["dc"]], int))
-            out.append(np.array([i for i in idx if i in special["win"]], int))
-            out.append(np.array([i for i in idx if i in special["band"]], int))
-        return [x for x in out if len(x)]
+            out[f"{v}:lines"] = np.array([i for i in idx if i not in other], int)
+            for k in ("dc", "win", "band"):
+                out[f"{v}:{k}"] = np.array([i for i in idx if i in special[k]], int)
+        return {k: x for k, x in out.items() if len(x)}

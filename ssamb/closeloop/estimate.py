@@ -96,6 +96,9 @@ class EstimateSettings:
         still below ``min_snr`` after two is weak enough to stay at its prior (measured: without
         the cap a calibration replicated five times in a row for one direction, 160 replays, and
         its estimate did not move).
+    min_trust : float
+        The trust region below which an estimate whose surrogate still asks for a step larger
+        than ``tol`` is stalled (no step it tried improved the fit): the fit stops, not converged.
     probe_growth, max_probes : float, int
         A parameter that may be probed (:attr:`Problem.probe`: an effect's size) and lies in no
         determined direction has its finite-difference step multiplied by ``probe_growth`` and the
@@ -118,6 +121,7 @@ class EstimateSettings:
     max_replicates: int = 2
     probe_growth: float = 4.0
     max_probes: int = 2
+    min_trust: float = 1.0 / 16.0
 
 
 @dataclass
@@ -370,9 +374,11 @@ def _row_noise(C: np.ndarray, groups, rho: float) -> np.ndarray:
     return out
 
 
-def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings, trust: float) -> np.ndarray:
+def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings, trust: float,
+                want_full: bool = False):
     """The Gauss-Newton step on the surrogate (with prior), restricted to the kept directions
-    (:func:`_information`), shortened to the bounds and the trust region.
+    (:func:`_information`), shortened to the bounds and the trust region (``want_full``: also the
+    step shortened to the bounds only, whose size decides convergence).
 
     A parameter on a bound whose step would leave the box is held there (an active set: the
     step is solved again on the kept directions that leave it alone) -- shortening the whole
@@ -382,7 +388,7 @@ def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings
     scale = _scale(prob)
     p = len(theta)
     if keep.shape[1] == 0:
-        return np.zeros(p)
+        return (np.zeros(p), np.zeros(p)) if want_full else np.zeros(p)
     g = (B.T @ a + lam * (theta - prob.theta0)) * scale          # scaled gradient
     Hs = (info + np.diag(lam)) * np.outer(scale, scale)
     eps = 1e-9 * np.asarray(prob.step, float)
@@ -396,7 +402,7 @@ def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings
 
             ns = null_space(keep[held])
             if ns.shape[1] == 0:
-                return np.zeros(p)
+                return (np.zeros(p), np.zeros(p)) if want_full else np.zeros(p)
             K = keep @ ns
         z = -np.linalg.lstsq(K.T @ Hs @ K, K.T @ g, rcond=None)[0]
         d = (K @ z) * scale
@@ -405,13 +411,17 @@ def _solve_step(a, B, info, keep, lam, theta, prob: Problem, s: EstimateSettings
         if not out.any():
             break
         held |= out
-    radius = trust * s.max_step * prob.step
-    lo = np.minimum(np.maximum(prob.lower - theta, -radius), 0.0)
-    hi = np.maximum(np.minimum(prob.upper - theta, radius), 0.0)
-    # shrink the step along its own direction to the box (keeps it in the kept subspace)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        f = np.where(d > 0, hi / d, np.where(d < 0, lo / d, np.inf))
-    return d * min(1.0, float(np.min(f)))
+    def shrink(d, radius):
+        # shorten the step along its own direction to the box (keeps it in the kept subspace)
+        lo = np.minimum(np.maximum(prob.lower - theta, -radius), 0.0)
+        hi = np.maximum(np.minimum(prob.upper - theta, radius), 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(d > 0, hi / d, np.where(d < 0, lo / d, np.inf))
+        return d * min(1.0, float(np.min(f)))
+    full = shrink(d, np.inf)
+    if want_full:
+        return shrink(full, trust * s.max_step * prob.step), full
+    return shrink(full, trust * s.max_step * prob.step)
 
 
 def _scale(prob: Problem) -> np.ndarray:
@@ -666,15 +676,22 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
                 log(f"iteration {it}: {', '.join(prob.names[i] for i in np.flatnonzero(grow))} in no determined "
                     f"direction: steps x{s.probe_growth:g}, pairs again")
             continue
-        d = _solve_step(a, B, info, keep, lam, theta, prob, s, trust)
+        d, d_full = _solve_step(a, B, info, keep, lam, theta, prob, s, trust, want_full=True)
         H = info + np.diag(lam)
-        norm = float(np.sqrt(max(d @ H @ d, 0.0) / len(d)))
+        # convergence is judged on the step the surrogate asks for, not on the trust region's
+        # share of it (repeated rejections shrink that to nothing without reaching an optimum)
+        norm = float(np.sqrt(max(d_full @ H @ d_full, 0.0) / len(d)))
         rho = float(np.mean(rhos))
         history.append({"iteration": it, "theta": theta.tolist(), "step": d.tolist(), "chi2": float(a @ a),
                         "rho": rho, "step_norm": norm, "determined_directions": int(keep.shape[1]), "trust": trust})
         if log is not None:
             log(f"iteration {it}: chi2 {a @ a:.1f} (N {len(a)}), step {norm:.2f} (posterior metric, per parameter), "
                 f"{keep.shape[1]} determined directions")
+        if norm >= s.tol and trust < s.min_trust:
+            history[-1]["stalled"] = True
+            if log is not None:
+                log(f"  stalled: no step within {trust:.3g} of the trust region improves the fit")
+            break
         if norm < s.tol and pending and it < s.max_iter - 1 and replicates < s.max_replicates:
             replicates += 1
             # informative directions whose Jacobian is still noise: replicate the pairs here

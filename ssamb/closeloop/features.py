@@ -460,8 +460,8 @@ def scale_views(f: "Features", fac_bins: np.ndarray, fac_dc: np.ndarray, fac_win
         kw["cov_dl"] = f.cov_dl * b[:, None] * b[None, :]
     more = f.cov_win.size or f.cov_band.size or f.cov_dl.size or fac_band is not None or fac_dl is not None
     factors = (np.asarray(fac_bins), np.asarray(fac_dc)) if not more else \
-        (np.asarray(fac_bins), np.asarray(fac_dc), np.asarray(fac_win), None if fac_band is None else np.asarray(fac_band),
-         None if fac_dl is None else np.asarray(fac_dl))
+        (np.asarray(fac_bins), np.asarray(fac_dc), np.asarray(fac_win),
+         None if fac_band is None else np.asarray(fac_band), None if fac_dl is None else np.asarray(fac_dl))
     return dataclasses.replace(f, cov_bins=f.cov_bins * d[:, None] * d[None, :],
                                cov_lines=f.cov_lines * d[:, None] * d[None, :], cov_dc=f.cov_dc * np.outer(e, e),
                                cov_win=f.cov_win * w[:, None] * w[None, :] if f.cov_win.size else f.cov_win,

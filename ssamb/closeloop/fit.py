@@ -15,11 +15,14 @@ noise its replicates show: :meth:`ssamb.closeloop.comparison.Comparison.noise_fa
 
 is at most standard normal when the base is right (its mean is :math:`-\|\delta\|/2` for a
 noiseless prediction and about 0 when :math:`\delta` is the predictions' own noise), and large
-when the candidate explains what the base missed: a one-sided test. Per view, the share of the
-residual excess over the noise (:math:`\chi^2_v - n_v`) that the candidate removes is averaged
-over the views that stood clearly above the noise (:math:`\chi^2_v >` ``above_noise`` :math:`n_v`, or
-a chi-square significant at ``alpha_noise`` over the views: a view's excess can be significant
-and much smaller than its entries);
+when the candidate explains what the base missed: a one-sided test. The same statistic per group
+of entries (a view's DC, windows, bands, lines: :meth:`~ssamb.closeloop.comparison.Comparison.named_groups`),
+``z_group`` the largest, tested at ``alpha_accept`` over the groups (Bonferroni): the
+predictions' noise in all :math:`N` entries can hide an improvement in a few (a load in the DC of
+the currents). The share of the residual excess over the noise (:math:`\chi^2_g - n_g`) that the
+candidate removes is averaged over the groups that stood clearly above the noise
+(:math:`\chi^2_g >` ``above_noise`` :math:`n_g`, or a chi-square significant at ``alpha_noise``
+over the groups: an excess can be significant and much smaller than its entries);
 a view is made worse when its :math:`\chi^2` grows by more than ``worse_sigma`` standard
 deviations of the difference of two noisy predictions' :math:`\chi^2`. With :math:`\bar r` the
 view's expected residual and :math:`e_0, e_1` the predictions' unit-variance noise,
@@ -140,14 +143,27 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
         (x0, n), (x1, _) = c0[v], c1[v]
         frac = (x0 - x1) / (x0 - n) if x0 > n else 0.0
         per_view[v] = {"chi2_before": x0, "chi2_after": x1, "n": n, "explained": frac}
-        # clearly above the noise: many times its entries, or significantly above them
-        if x0 > settings.above_noise * n or stats.chi2.sf(x0, n) < settings.alpha_noise / len(c0):
-            fracs.append(frac)
         if x1 - x0 > settings.worse_sigma * math.sqrt(4 * n + 8 * max(x0, n)):
             worse.append(v)
+    # per group of entries (a view's DC, its windows, bands, lines): the same statistic, and the
+    # share of the excess of every group clearly above the noise (many times its entries, or a
+    # significant chi-square) -- an effect may sit in a few entries of a large view (a load in the
+    # DC of the currents) that the view's chi-square does not show
+    groups = cmp.named_groups(cmp.hold)
+    zg, per_group = {}, {}
+    for name, g in groups.items():
+        x0, x1, n = float(r0[g] @ r0[g]), float(r1[g] @ r1[g]), len(g)
+        ndg = float(np.linalg.norm(d[g]))
+        zg[name] = (x0 - x1) / (2 * ndg) if ndg > 0 else 0.0
+        per_group[name] = {"chi2_before": x0, "chi2_after": x1, "n": n, "z": zg[name]}
+        if x0 > settings.above_noise * n or stats.chi2.sf(x0, n) < settings.alpha_noise / len(groups):
+            fracs.append((x0 - x1) / (x0 - n))
+    best = max(zg, key=zg.get) if zg else None
     f0, f1 = _scaled(cmp, cmp.fit, base, pred, overrides, effects)
     dbic = float(f1 @ f1 - f0 @ f0 + n_params * math.log(len(f0)))
     return {"z": z, "delta_chi2": dsse, "explained": float(np.mean(fracs)) if fracs else 0.0,
+            "z_group": zg.get(best, 0.0) if best else 0.0, "group": best, "n_groups": len(groups),
+            "per_group": per_group,
             "views_worse": worse, "per_view": per_view, "delta_bic": dbic,
             "chi2_fit_before": float(f0 @ f0), "chi2_fit_after": float(f1 @ f1), "n_fit": len(f0)}
 

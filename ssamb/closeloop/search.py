@@ -4,28 +4,35 @@ held-out data, then refit everything jointly.
 1. **Calibration** (:func:`ssamb.closeloop.calibration.calibrate_model`): the nominal
    parameters, MAP on the fitting part's features. A parameter driven beyond ``conflict_z``
    tolerances conflicts with its stated tolerance -- usually an effect the model lacks, which the
-   parameter absorbs (a sensor gain error in the self-sensing calibration gain) -- and the effect
-   search starts with it at its nominal value.
+   parameter absorbs (a sensor gain error in the self-sensing calibration gain); the evidence is
+   then read with it at its nominal value (what it absorbed shows).
 2. **Rounds** (base = calibrated model + the effects accepted so far): the features of the base
    residual (:mod:`ssamb.closeloop.residual`), the evidence of every library effect
    (:mod:`ssamb.closeloop.signatures`), the held-out consistency test (:func:`consistency`). The
-   best-ranked ``candidates_per_round`` with significant evidence are fitted on the base
-   (:func:`ssamb.closeloop.fit.fit_candidate`) and judged on the held-out part: the improvement
-   test :math:`z > z_{1-\alpha}` (``alpha_accept``), at least ``min_explained`` of the residual
-   excess explained, no view made worse, the BIC drops, the effect's own signature is gone
-   from the residual. When no single candidate passes, the leading pairs are fitted jointly (two
-   effects can hide each other). When no signature is significant yet the held-out residual is not
-   noise, every library effect that needs no hint from a signature is fitted and judged the same
-   way (the report says so). The passing candidate that explains the largest mean share of the
-   views' held-out excess joins the base (the chi-square it removes breaks ties). The search stops when the held-out residual is consistent with noise, no candidate
-   passes, or ``max_effects`` are in.
+   best-ranked ``candidates_per_round`` with significant evidence are fitted with **every**
+   calibrated parameter (:func:`ssamb.closeloop.fit.fit_candidate`: the MAP of parameters and
+   effect together; the identified parameters start where the base has them, the others at
+   their prior mean) and judged on the held-out part against the base: the improvement test
+   :math:`z > z_{1-\alpha}` (``alpha_accept``) in all entries or in one group of entries
+   (Bonferroni over the groups, :func:`improves`), at least ``min_explained`` of the excess of
+   the groups clearly above the noise explained, no view made worse, the BIC drops, the effect's
+   own signature is gone from the residual, its size differs from zero in its own fit, and the
+   model with it does not delevitate in most replays where the measured rotor did not. When no
+   single candidate passes, the leading pairs are fitted jointly (two effects can hide each
+   other); when those fail too, or no signature is significant, yet the held-out residual is not
+   noise, every other library effect that needs no hint from a signature is fitted and judged
+   the same way (the report says so). The passing candidate that explains the largest mean share
+   of the held-out excess joins the base (the chi-square it removes breaks ties). The search
+   stops when the held-out residual is consistent with noise, no candidate passes, or
+   ``max_effects`` are in.
 3. **Joint refit**: the calibrated parameters and the accepted effects' parameters together
    (an effect absorbs what a parameter took before it was found; the parameters' priors decide
    how shared signatures split), and the identifiability of all of them. It starts from the
-   model the effects were found on: the identified parameters where the search left them, the
-   others -- conflicting or unidentified -- at their prior mean (:func:`joint_start`). An
-   effect whose size the joint refit finds consistent with zero (:func:`size_statistic`) is
-   dropped from the findings and the final model.
+   model the effects were found on (:func:`joint_start`). An effect whose size the joint refit
+   finds consistent with zero (:func:`size_statistic`) is dropped from the findings and the
+   final model. How the final model is known to be a local optimum of the joint problem
+   (:func:`optimum_of`) and how far its held-out misfit stays above the noise (:func:`misfit`)
+   go into the report.
 """
 from __future__ import annotations
 
@@ -185,9 +192,11 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
     p = len(cand.model.params)
     hs = holdout_score(cmp, base, cand.pred, cand.overrides, list(base.effects) + cand.effects, p, settings)
     cand.score = hs
-    z_crit = float(stats.norm.isf(settings.alpha_accept))
-    if hs["z"] <= z_crit:
-        cand.reasons.append(f"held-out improvement not significant (z = {hs['z']:.2f} <= {z_crit:.2f})")
+    if not improves(hs, settings):
+        z_crit = float(stats.norm.isf(settings.alpha_accept))
+        zg_crit = float(stats.norm.isf(settings.alpha_accept / max(hs["n_groups"], 1)))
+        cand.reasons.append(f"held-out improvement not significant (z = {hs['z']:.2f} <= {z_crit:.2f}; in "
+                            f"{hs['group']} {hs['z_group']:.2f} <= {zg_crit:.2f})")
     need = settings.min_explained * len(cand.names)
     if hs["explained"] < need:
         cand.reasons.append(f"explains {100 * hs['explained']:.0f} % of the residual excess (< {100 * need:.0f} %)")
@@ -204,8 +213,11 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
         cand.score["claims"][n] = (before, after)
         if after > max(claim_crit, settings.claim_residual * before):
             cand.reasons.append(f"the signature of {n} remains after the fit (claim chi2 {before:.3g} -> {after:.3g})")
-    if cand.pred.get("delevitated") and not measured_contact:
-        cand.reasons.append("the model with it delevitates (the measured rotor does not)")
+    # the model with it delevitates in most of its replays where the measured rotor did not (a rig
+    # run near its stability margin, a large delay, may delevitate in a few realisations of its
+    # noise: the measured one is one realisation)
+    if cand.pred.get("delevitated_share", float(bool(cand.pred.get("delevitated")))) > 0.5 and not measured_contact:
+        cand.reasons.append("the model with it delevitates in most replays (the measured rotor does not)")
     # its size, in its own fit (when that converged: an unconverged fit's last step joins its
     # covariance): every calibrated parameter is refitted with a candidate, and their refit alone
     # can improve held-out data a little (measured: z 2.6-2.9 for a 0.001 cross coupling and an
@@ -217,6 +229,16 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
         if cand.fit.converged and w <= float(stats.chi2.isf(settings.alpha_accept, k)):
             cand.reasons.append(f"its size is consistent with zero in its fit (Wald chi2 {w:.3g} on {k})")
     cand.score["size_chi2"] = w_crit
+
+
+def improves(hs: dict, settings) -> bool:
+    """Whether a held-out score (:func:`ssamb.closeloop.fit.holdout_score`) is a significant
+    improvement: in all entries at ``alpha_accept``, or in one group of entries at ``alpha_accept``
+    over the groups (Bonferroni)."""
+    if hs.get("z", 0.0) > float(stats.norm.isf(settings.alpha_accept)):
+        return True
+    n = max(int(hs.get("n_groups", 0)), 1)
+    return hs.get("z_group", 0.0) > float(stats.norm.isf(settings.alpha_accept / n))
 
 
 def size_statistic(theta: np.ndarray, cov: np.ndarray, params: list, size_params=None) -> tuple[float, int]:
@@ -250,14 +272,16 @@ def size_statistic(theta: np.ndarray, cov: np.ndarray, params: list, size_params
     return (w if np.isfinite(w) else 0.0), len(idx)
 
 
-def _entry(cand: Candidate, rnd: int, repolish: bool = False) -> dict:
+def _entry(cand: Candidate, rnd: int, settings) -> dict:
     fit = cand.fit
     hs = cand.score
     return {"name": "+".join(cand.names), "round": rnd,
             "theta": dict(zip(cand.model.params, fit.theta[cand.n_free:].tolist())) if fit else {},
             "se": dict(zip(cand.model.params, fit.se[cand.n_free:].tolist())) if fit else {},
             "sims": fit.evaluations if fit else 0, "iterations": fit.iterations if fit else 0,
-            "holdout_z": hs.get("z"), "explained": hs.get("explained", 0.0), "views_worse": hs.get("views_worse", []),
+            "holdout_z": hs.get("z"), "holdout_z_group": hs.get("z_group"), "holdout_group": hs.get("group"),
+            "improves": bool(hs) and improves(hs, settings),
+            "explained": hs.get("explained", 0.0), "views_worse": hs.get("views_worse", []),
             "per_view": hs.get("per_view", {}),
             "delta_bic": hs.get("delta_bic"), "claims": hs.get("claims", {}), "passed": cand.passed,
             "reasons": list(cand.reasons)}
@@ -288,8 +312,10 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
                          log=(lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
     _judge(cand, cmp, base, ev, ft, settings, measured_contact)
     th = dict(zip(cand.model.params, cand.fit.theta[cand.n_free:].tolist())) if cand.fit else {}
-    _log(progress, f"  {'+'.join(names)}: {th} -> held-out z {cand.score.get('z', float('nan')):.1f}, explained "
-                   f"{100 * cand.score.get('explained', 0.0):.0f} %, {'passes' if cand.passed else '; '.join(cand.reasons)} "
+    sc = cand.score
+    _log(progress, f"  {'+'.join(names)}: {th} -> held-out z {sc.get('z', float('nan')):.1f} "
+                   f"({sc.get('group')} {sc.get('z_group', float('nan')):.1f}), explained "
+                   f"{100 * sc.get('explained', 0.0):.0f} %, {'passes' if cand.passed else '; '.join(cand.reasons)} "
                    f"({cand.fit.evaluations if cand.fit else 0} sims, {time.perf_counter() - t1:.1f} s)")
     return cand
 
@@ -300,7 +326,7 @@ def _worth_refining(cand: Candidate, settings) -> bool:
     signature left (the base's parameters absorbed part of the effect in the calibration)."""
     if cand.fit is None:
         return False
-    significant = cand.score.get("z", 0.0) > float(stats.norm.isf(settings.alpha_accept))
+    significant = improves(cand.score, settings)
     fixable = ("makes ", "explains ", "the signature of ")
     return not cand.reasons or (significant and all(r.startswith(fixable) for r in cand.reasons))
 
@@ -314,7 +340,7 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
     for k, name in enumerate(singles):
         cand = _try(cmp, base, [name], ev, rec, settings, est, 10_000 * (rnd + 1) + 100 * k, ft, measured_contact,
                     progress)
-        info["candidates"].append(_entry(cand, rnd))
+        info["candidates"].append(_entry(cand, rnd, settings))
         if base.spare and _worth_refining(cand, settings):
             # passed, or nearly: the unidentified parameters may hold part of the effect, so the
             # fit on the identified ones (a cheap screen) is refined with every calibrated
@@ -323,15 +349,14 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
             # candidates are refitted
             cand = _try(cmp, base.widened(), [name], ev, rec, settings, est,
                         10_000 * (rnd + 1) + 100 * k + 50, ft, measured_contact, progress)
-            info["candidates"].append({**_entry(cand, rnd), "all_parameters_free": True})
+            info["candidates"].append({**_entry(cand, rnd, settings), "all_parameters_free": True})
         if cand.passed:
             passing.append(cand)
         else:
             rejected[name] = rejected.get(name, 0) + 1
-    z_crit = float(stats.norm.isf(settings.alpha_accept))
     # distinct names: a candidate refitted with all parameters free is listed twice, and a pair of
     # an effect with itself is two copies of one effect (two 0 N static loads had been accepted so)
-    promising = list(dict.fromkeys(e["name"] for e in info["candidates"] if (e.get("holdout_z") or 0.0) > z_crit))
+    promising = list(dict.fromkeys(e["name"] for e in info["candidates"] if e.get("improves")))
     if not passing and len(promising) >= 2 and not fallback:
         # two effects can hide each other: pairs of the candidates that improved held-out data
         top = promising[: settings.candidates_per_round]
@@ -339,7 +364,7 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
             for j in range(i + 1, len(top)):
                 cand = _try(cmp, base, [top[i], top[j]], ev, rec, settings, est,
                             10_000 * (rnd + 1) + 5000 + 100 * (i * 10 + j), ft, measured_contact, progress)
-                info["candidates"].append(_entry(cand, rnd))
+                info["candidates"].append(_entry(cand, rnd, settings))
                 if cand.passed:
                     passing.append(cand)
     return passing
@@ -563,10 +588,16 @@ def optimum_of(fit, tol: float) -> dict:
         return {"converged": True, "how": "nothing was fitted"}
     steps = [h["step_norm"] for h in fit.history if "step_norm" in h]
     last = steps[-1] if steps else 0.0
-    how = (f"the joint refit converged: its last Gauss-Newton step was {last:.2g} posterior standard deviations "
-           f"per parameter (stop at {tol:g}) after {fit.iterations} iterations"
-           if fit.converged else
-           f"the joint refit did NOT converge: its iterations ran out with a step of {last:.2g} posterior standard "
-           f"deviations per parameter (stop at {tol:g}); the step is added to the reported covariance")
-    return {"converged": bool(fit.converged), "last_step_posterior_sd": float(last), "tolerance": float(tol),
-            "iterations": int(fit.iterations), "simulations": int(fit.evaluations), "how": how}
+    stalled = any(h.get("stalled") for h in fit.history)
+    if fit.converged:
+        how = (f"the joint refit converged: its last Gauss-Newton step was {last:.2g} posterior standard deviations "
+               f"per parameter (stop at {tol:g}) after {fit.iterations} iterations")
+    elif stalled:
+        how = (f"the joint refit did NOT converge: it stalled, its surrogate asking for a step of {last:.2g} posterior "
+               f"standard deviations per parameter that no shorter step it tried improved: the fit is a local optimum "
+               f"of its trust region only")
+    else:
+        how = (f"the joint refit did NOT converge: its iterations ran out with a step of {last:.2g} posterior standard "
+               f"deviations per parameter (stop at {tol:g}); the step is added to the reported covariance")
+    return {"converged": bool(fit.converged), "stalled": bool(stalled), "last_step_posterior_sd": float(last),
+            "tolerance": float(tol), "iterations": int(fit.iterations), "simulations": int(fit.evaluations), "how": how}

@@ -114,6 +114,11 @@ class Settings:
     contact_fraction : float
         The measured rotor touched the backup bearing when its radial position reached this
         fraction of the clearance (a candidate whose model touches is then not implausible).
+    device_line_relative : float
+        The model's reproducibility at the device's own lines, relative to a line's amplitude
+        (a views compared there only, :attr:`ssamb.device.FeatureSpec.device_line_views`): a
+        noise-free logged output's deterministic lines carry structure no calibrated parameter
+        reproduces exactly (the rig's own clamped DCM calibration), far above their in-loop noise.
     """
 
     fit_fraction: float = 0.7
@@ -151,6 +156,7 @@ class Settings:
     above_noise: float = 2.0
     worse_sigma: float = 3.0
     contact_fraction: float = 0.95
+    device_line_relative: float = 0.02
 
 
 _WORKFLOW_KEYS = ("datasets", "default_dataset", "rigs")

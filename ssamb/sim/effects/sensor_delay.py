@@ -100,23 +100,33 @@ def fit_axes(hints: dict, excited_axes: tuple) -> tuple:
 
 def model(hints: dict, record, st) -> EffectModel | str:
     axes = fit_axes(hints, tuple(record.excited_axes))
+    hinted = tuple(a in (hints.get("axes") or ()) and ("delay_" + a) in hints for a in axes)
     th = np.array([max(float(hints.get("delay_" + a, 0.0)), 0.0) for a in axes])
-    return EffectModel(NAME, tuple(f"delay_{a}_s" for a in axes), th, np.maximum(0.2 * th, 5e-6),
+    # a step of 1 us: at the PWM's aliased lines (to 40 kHz) a delay is a phase of 0.25 rad per
+    # microsecond, and a finite difference over several microseconds is no longer linear
+    return EffectModel(NAME, tuple(f"delay_{a}_s" for a in axes), th, np.full(len(axes), 1e-6),
                        np.zeros(len(axes)), np.full(len(axes), 2.4e-3),
                        lambda t: [{"name": NAME, "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
-                       {"axes": axes}, _grid(th))
+                       {"axes": axes}, _grid(th, hinted))
 
 
-def _grid(th: np.ndarray) -> tuple:
-    r"""Coarse starts of a fit: both axes at 5-120 us every 5 us, and each axis alone every 10 us
-    with the other at its hint. The PWM carrier's aliased lines (6.7-40 kHz) turn a delay into
-    phases :math:`2\pi f\tau` of a cycle or more, so the cost has a minimum every few tens of
-    microseconds, and a local fit from a hint far below the truth (the excited lines' slope,
-    blind to a delay of a few microseconds at 26 Hz) stops at the wrong one."""
-    both = [np.array([d, d]) for d in np.arange(5e-6, 121e-6, 5e-6)]
-    one = [np.array([d, th[1]]) for d in np.arange(0.0, 121e-6, 10e-6)] + \
-          [np.array([th[0], d]) for d in np.arange(0.0, 121e-6, 10e-6)]
-    return tuple(both + one)
+def _grid(th: np.ndarray, hinted: tuple) -> tuple:
+    r"""Coarse starts of a fit for the axes whose evidence gives no delay: each such axis alone
+    every 10 us from 0 to 120 us (the other at its start), and both at 5-120 us every 5 us when
+    neither has one. The PWM carrier's aliased lines (6.7-40 kHz) turn a delay into phases
+    :math:`2\pi f\tau` of a cycle or more, so the cost has a minimum every few tens of
+    microseconds, and a local fit from far below the truth (the excited lines' slope is blind to
+    a delay of a few tens of microseconds at 26 Hz) stops at the wrong one."""
+    pts = []
+    if not any(hinted):
+        pts += [np.array([d, d]) for d in np.arange(5e-6, 121e-6, 5e-6)]
+    for i, h in enumerate(hinted):
+        if not h:
+            for d in np.arange(0.0, 121e-6, 10e-6):
+                t = th.copy()
+                t[i] = d
+                pts.append(t)
+    return tuple(pts)
 
 
 def report(m: EffectModel, theta, se, significant) -> list[dict]:
