@@ -26,6 +26,8 @@ the computed reason.
 * a position channel beyond 1.5 times the backup clearance (``table1.backup_clearance_m``), or
   one that never moves (peak to peak below 1 nm: a held value, a disconnected channel, or a
   unit 1000 times too small), or that is constant;
+* nothing excited (every reference and injection constant, and no current injection described in
+  ``meta``): levitation at rest, compared by its slow trends and noise spectra alone;
 * a channel that sits at its extreme value for at least 0.2 % of the samples (at least 20):
   clipped (a converter's range, an amplifier's or the controller's limit);
 * the mean coil current (common mode) of an axis off the bias ``table1.i_bias_a`` by more than a
@@ -71,10 +73,10 @@ def _current_limit(cfg: Mapping) -> float:
 
 
 def check_measured(arrays: Mapping, cfg: Mapping, source: str = "data", meta: Mapping | None = None) -> None:
-    """Raise :class:`ssamb.io.DataError` for a value the rig cannot produce (module docstring),
-    or for data without an excitation (every reference and injection constant, and no current
-    injection described in ``meta`` to rebuild): close the loop compares the response to an
-    excitation.
+    """Raise :class:`ssamb.io.DataError` for a value the rig cannot produce (module docstring).
+
+    Data without an excitation (levitation at rest) are no error: close the loop compares their
+    slow trends and noise spectra (:func:`measured_notes` says so).
 
     Parameters
     ----------
@@ -85,7 +87,7 @@ def check_measured(arrays: Mapping, cfg: Mapping, source: str = "data", meta: Ma
     source : str
         The data file, the first word of the message.
     meta : mapping, optional
-        The data's ``meta`` (a current injection it describes is rebuilt from it).
+        The data's ``meta`` (read for nothing; the device interface passes it).
 
     Raises
     ------
@@ -94,14 +96,7 @@ def check_measured(arrays: Mapping, cfg: Mapping, source: str = "data", meta: Ma
     """
     from .io import DataError
 
-    drives = [c for c in ("r_x", "r_y", "inj_x", "inj_y") if c in arrays]
-    exc = (meta or {}).get("excitation") or {}
-    rebuilt = (isinstance(exc, Mapping) and exc.get("point") == "current" and exc.get("kind") not in (None, "none")
-               and not {"inj_x", "inj_y"} <= set(arrays))
-    if not rebuilt and all(np.ptp(_col(arrays, c)) == 0 for c in drives):
-        raise DataError(f"{source}: columns {', '.join(repr(c) for c in drives)} are all constant: nothing excites "
-                        "the loop, and close the loop compares its response to an excitation (a multisine, "
-                        "pulses or a sweep on a reference or an injection)")
+    del meta
     airgap = float(cfg["table1"]["airgap_m"])
     for c in POSITIONS:
         peak = float(np.max(np.abs(_col(arrays, c))))
@@ -187,7 +182,8 @@ def measured_notes(arrays: Mapping, meta: Mapping, cfg: Mapping) -> list[str]:
         Measured-data columns, valid in format (:func:`ssamb.io.validate_measured`) and free of
         impossible values (:func:`check_measured`).
     meta : mapping
-        The data's ``meta`` (read for nothing yet; the device interface passes it).
+        The data's ``meta`` (a current injection it describes is rebuilt from it: the data are
+        excited although every logged reference and injection is constant).
     cfg : mapping
         The nominal configuration of the bearing.
 
@@ -197,8 +193,15 @@ def measured_notes(arrays: Mapping, meta: Mapping, cfg: Mapping) -> list[str]:
         One note per finding, each naming the column(s) and the computed reason; empty when
         nothing is suspicious.
     """
-    del meta
     notes = []
+    drives = [c for c in ("r_x", "r_y", "inj_x", "inj_y") if c in arrays]
+    exc = (meta or {}).get("excitation") or {}
+    rebuilt = (isinstance(exc, Mapping) and exc.get("point") == "current" and exc.get("kind") not in (None, "none")
+               and not {"inj_x", "inj_y"} <= set(arrays))
+    if not rebuilt and all(np.ptp(_col(arrays, c)) == 0 for c in drives):
+        notes.append(f"columns {', '.join(repr(c) for c in drives)} are all constant: nothing excites the loop "
+                     "(levitation at rest); close the loop compares only slow trends and noise spectra, which "
+                     "show fewer effects than the response to a multisine, pulses or a sweep")
     clearance = float(cfg["table1"]["backup_clearance_m"])
     for c in POSITIONS:
         a = _col(arrays, c)

@@ -800,11 +800,6 @@ def _npz_cases() -> list[Case]:
         lambda d: closeloop(d, npz(d, {k: (v[:8000] if np.ndim(v) else v) for k, v in arrays.items()}, meta)),
     )
     c("optional column with NaN", ("'inj_x'",), lambda d: npz_case(d, inj_x=np.full(n, np.nan), inj_y=np.zeros(n)))
-    c(
-        "no excitation (all zero)",
-        ("'r_x'", "'r_y'", "constant"),
-        lambda d: npz_case(d, r_x=np.zeros(n), r_y=np.zeros(n)),
-    )
     c("positions in mm", ("'x_meas'", "airgap", "mm"), lambda d: npz_case(d, **scaled(POSITIONS, 1e3)))
     c("positions in um", ("'x_meas'", "airgap"), lambda d: npz_case(d, **scaled(POSITIONS, 1e6)))
     c("currents in mA", ("'i_ypos'", "mA"), lambda d: npz_case(d, **scaled(CURRENTS, 1e3)))
@@ -1142,6 +1137,8 @@ def _note_cases() -> list[Case]:
     c("currents in kA", ("'i_ypos'", "bias"), **scaled(CURRENTS, 1e-3))
     c("positions beyond the clearance", ("'y_meas'", "clearance"), y_meas=a["y_meas"] * 10.0)
     c("constant current", ("'i_xneg'", "constant"), i_xneg=np.full(n, 3.0))
+    # levitation at rest is analysed (slow trends, noise spectra), with a note that nothing excites it
+    c("no excitation (all zero)", ("'r_x'", "'r_y'", "constant", "nothing excites"), r_x=np.zeros(n), r_y=np.zeros(n))
     return rows
 
 

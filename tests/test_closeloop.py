@@ -156,15 +156,21 @@ LIGHT = {"replay_seeds": 4, "estimate": {"centre_runs": 3, "max_iter": 6},
                          "selfsensing.calibration_offset_error_m": 1.0e-5}}
 
 
-@pytest.fixture(scope="module")
-def written(tmp_path_factory):
-    """A rig file with a static load, analysed through the command line (light settings)."""
-    tmp = tmp_path_factory.mktemp("cl")
+def _light_config(tmp: Path) -> Path:
+    """``tmp/c.yaml``: the repository's config with the :data:`LIGHT` analysis and no data sets."""
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
     cfg["closeloop"].update(LIGHT)
     cfg["closeloop"]["datasets"] = {}
     cfg["closeloop"].pop("default_dataset", None)
     (tmp / "c.yaml").write_text(yaml.safe_dump(cfg))
+    return tmp / "c.yaml"
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    """A rig file with a static load, analysed through the command line (light settings)."""
+    tmp = tmp_path_factory.mktemp("cl")
+    _light_config(tmp)
     sc = tmp / "s.yaml"
     sc.write_text(yaml.safe_dump({
         "config": str(REPO / "config.yaml"),
@@ -273,3 +279,26 @@ def test_findings_text_one_line_each():
     assert "parameter table1.mass_kg = 4.05 +- 0.01 kg (model 3.86 kg, +4.92 %)" in lines
     assert any(ln.startswith("not identifiable table1.coil_turns: confounded") for ln in lines)
     assert any(ln.startswith("effect static_load: fx_n = 3 +- 0.1, fy_n = -1") for ln in lines)
+
+
+@pytest.mark.slow
+def test_levitation_at_rest_closes_the_loop(tmp_path):
+    """Levitation at rest (nothing excited, 0.6 s) with an 8 N load on x: the command line
+    analyses it (a note says nothing excites the loop) and finds the load from the coil
+    currents' slow trends (light settings)."""
+    config = _light_config(tmp_path)
+    sc = tmp_path / "s.yaml"
+    sc.write_text(yaml.safe_dump({
+        "config": str(REPO / "config.yaml"), "experiment": {"kind": "none", "seed": 3}, "duration_s": 0.6,
+        "effects": [{"name": "static_load", "fx_n": 8.0, "fy_n": 0.0}],
+        "noise": {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 5}}))
+    data = tmp_path / "rig.npz"
+    run_scenario(sc, data, progress=False)
+    out = tmp_path / "out"
+    assert main(["closeloop", str(data), "--out", str(out), "--quiet", "--config", str(config)]) == 0
+    rep = json.loads((out / "closeloop.json").read_text())
+    assert any("nothing excites the loop" in n for n in rep["notes"]), rep["notes"]
+    assert [e["name"] for e in rep["effects"]] == ["static_load"], rep["summary"]
+    e = rep["effects"][0]
+    assert abs(e["params"]["fx_n"] - 8.0) <= max(3 * e["uncertainty"]["fx_n"], 0.8), e
+    assert abs(e["params"]["fy_n"]) <= max(3 * e["uncertainty"]["fy_n"], 0.8), e
