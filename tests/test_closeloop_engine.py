@@ -231,7 +231,8 @@ def test_correlated_replay_noise_reaches_the_errors():
 
         def evaluate(theta, seed, truth=truth, e_data=e_data):
             g = np.random.default_rng(seed)
-            return B @ (np.asarray(theta) - truth) - e_data + 0.3 * g.standard_normal(N) + tau * g.standard_normal() * B[:, 0]
+            return (B @ (np.asarray(theta) - truth) - e_data + 0.3 * g.standard_normal(N)
+                    + tau * g.standard_normal() * B[:, 0])
 
         prob = Problem(("a", "b"), np.zeros(2), np.full(2, np.inf), np.full(2, 0.05), np.full(2, -2.0), np.full(2, 2.0),
                        evaluate, seed0=1 + 1000 * k, groups=[np.arange(N)])

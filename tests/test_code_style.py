@@ -33,10 +33,6 @@ HISTORY = {
 }
 _HISTORY = re.compile("|".join(f"(?:{p})" for p in HISTORY.values()), re.IGNORECASE)
 
-#: TEMPORARY: paths under the close-the-loop engine's refactor, which cleans their docstrings
-#: itself; remove each entry when that work lands
-TEMPORARY_EXCLUDED = ("ssamb/closeloop/search.py", "ssamb/closeloop/estimate.py")
-
 #: where the check applies: the library, the workflow, the benchmarks (tests may name the issue
 #: whose behaviour they pin down)
 CHECKED = ("ssamb/**/*.py", "workflow/**/*.py", "bench/*.py")
@@ -44,7 +40,7 @@ CHECKED = ("ssamb/**/*.py", "workflow/**/*.py", "bench/*.py")
 
 def _python_files() -> list[Path]:
     files = {p for g in CHECKED for p in ROOT.glob(g)}
-    return sorted(p for p in files if not str(p.relative_to(ROOT)).startswith(TEMPORARY_EXCLUDED))
+    return sorted(files)
 
 
 def _docs_and_comments(path: Path):
@@ -111,7 +107,7 @@ def test_no_file_outside_the_repository_is_referred_to():
     for f in sorted(set(files)):
         rel = str(f.relative_to(ROOT))
         if (not f.is_file() or f == Path(__file__).resolve() or "_build" in f.parts
-                or rel.startswith(TEMPORARY_EXCLUDED + ("tests/test_closeloop",))):
+                or rel.startswith("tests/test_closeloop")):
             continue
         for n, line in enumerate(f.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
             if outside.search(line):

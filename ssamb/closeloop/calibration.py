@@ -230,9 +230,11 @@ def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio:
         j = int(np.argmax(np.abs(c)))
         ident = bool(se[i] <= ratio * tol) if math.isfinite(tol) else bool(se[i] < 1e5 * alone[i])
         per[name] = {"identified": ident, "se": float(se[i]), "se_alone": float(alone[i]), "tolerance": tol,
-                     "partner": names[j] if len(names) > 1 else None, "correlation": float(c[j]) if len(names) > 1 else 0.0,
+                     "partner": names[j] if len(names) > 1 else None,
+                     "correlation": float(c[j]) if len(names) > 1 else 0.0,
                      "reason": None if ident else _reason(i, names, c, alone[i], se[i], tol, ratio, fmt)}
-        if not ident and cov_noise is not None and math.isfinite(tol) and np.sqrt(max(cov_noise[i, i], 0.0)) <= ratio * tol:
+        if (not ident and cov_noise is not None and math.isfinite(tol)
+                and np.sqrt(max(cov_noise[i, i], 0.0)) <= ratio * tol):
             per[name]["reason"] = (f"the model misfits the data beyond their noise: with the misfit it is known only "
                                    f"to +-{fmt(se[i])} (+-{fmt(float(np.sqrt(cov_noise[i, i])))} at the noise alone; "
                                    f"tolerance +-{fmt(tol)})")
@@ -266,7 +268,8 @@ def _reason(i: int, names: tuple, c: np.ndarray, alone: float, se: float, tol: f
     if not math.isfinite(tol):
         return "the estimate did not move along a direction the data determine (no reliable sensitivity)"
     if alone > ratio * tol:
-        return f"the data barely depend on it: even alone it would be known to +-{_pct(alone)} (tolerance +-{_pct(tol)})"
+        return (f"the data barely depend on it: even alone it would be known to +-{_pct(alone)} "
+                f"(tolerance +-{_pct(tol)})")
     order = [k for k in np.argsort(-np.abs(c)) if k != i]
     if not order:
         return (f"the data inform it (alone it would be known to +-{_pct(alone)}), but the estimate did not move "

@@ -93,9 +93,9 @@ class EstimateSettings:
     max_replicates : int
         Replicates of the pairs at one centre for directions that look informative while their
         Jacobian is still noise (step 6). Each halves the Jacobian's noise variance; a direction
-        still below ``min_snr`` after two is weak enough to stay at its prior (measured: without
-        the cap a calibration replicated five times in a row for one direction, 160 replays, and
-        its estimate did not move).
+        still below ``min_snr`` after two is weak enough to stay at its prior (without the cap a
+        calibration can replicate one direction again and again, 160 replays for five rounds,
+        without its estimate moving).
     min_trust : float
         The trust region below which an estimate whose surrogate still asks for a step larger
         than ``tol`` is stalled (no step it tried improved the fit): the fit stops, not converged.
@@ -446,9 +446,9 @@ def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: 
     pairs for the smallest power of two ``n > p``, signs and order drawn per iteration): each run
     then informs every column of the Jacobian, and the regression's :math:`X^TX = 2nh^2 I` is
     ``n`` times larger per parameter than with the axes (the simultaneous-perturbation
-    advantage) -- the noise of a weakly determined valley drops below its signal. A mirror pair shares one seed (common random numbers); the pair's
-    midpoint is the centre, so curvature does not bias the slope. ``pair_runs`` replicates the
-    design with other seeds.
+    advantage) -- the noise of a weakly determined valley drops below its signal. A mirror pair
+    shares one seed (common random numbers); the pair's midpoint is the centre, so curvature does
+    not bias the slope. ``pair_runs`` replicates the design with other seeds.
     """
     base = prob.seed0 + 1000 * k
     p = len(theta)
@@ -480,7 +480,8 @@ def _unseen(prob: Problem, keep: np.ndarray, growth: float = 4.0) -> np.ndarray:
     probe = np.isinf(np.asarray(prob.prior_sd, float)) if prob.probe is None else np.asarray(prob.probe, bool)
     Q, _ = _basis(keep, p)
     held = np.sum(Q ** 2, axis=1)
-    room = np.asarray(prob.step, float) * growth <= 0.25 * (np.asarray(prob.upper, float) - np.asarray(prob.lower, float))
+    span = np.asarray(prob.upper, float) - np.asarray(prob.lower, float)
+    room = np.asarray(prob.step, float) * growth <= 0.25 * span
     return probe & (held < 0.5) & room
 
 

@@ -187,7 +187,8 @@ def _problem(cmp: Comparison, base: Base, model: EffectModel, seed0: int, step_r
                    prior_sd=cat(cp.prior_sd if k else [], np.full(len(model.params), np.inf)),
                    step=cat(cp.step if k else [], model.step), lower=cat(cp.lower if k else [], model.lower),
                    upper=cat(cp.upper if k else [], model.upper), evaluate=cmp.evaluator(cmp.fit, build),
-                   evaluate_many=cmp.evaluate_many(cmp.fit, build), start=cat(base.theta_free, model.theta0), seed0=seed0,
+                   evaluate_many=cmp.evaluate_many(cmp.fit, build), start=cat(base.theta_free, model.theta0),
+                   seed0=seed0,
                    groups=cmp.groups(cmp.fit), probe=np.concatenate([np.zeros(k, bool), size_mask(model)]))
     return prob, build
 

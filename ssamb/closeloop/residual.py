@@ -100,8 +100,9 @@ def channel_errors(meas: dict, model: dict, sl: slice, dev, sigma: dict | None =
     for name, group in dev.error_groups.items():
         e = np.concatenate([meas[c][sl] - model[c][sl] for c in group])
         y = np.concatenate([meas[c][sl] - meas[c][sl].mean() for c in group])
+        ny = np.linalg.norm(y)
         cur = {"rms": float(np.sqrt(np.mean(e ** 2))),
-               "fit_pct": float(100.0 * (1.0 - np.linalg.norm(e) / np.linalg.norm(y))) if np.linalg.norm(y) > 0 else float("nan"),
+               "fit_pct": float(100.0 * (1.0 - np.linalg.norm(e) / ny)) if ny > 0 else float("nan"),
                "per_coil": {c: out[c] for c in group}}
         if sigma is not None:
             cur["noise_rms"] = float(np.sqrt(np.mean([sigma[c] ** 2 for c in group])))
@@ -312,7 +313,8 @@ def _spectra_of(frame: Frame, meas_v: dict, model_v: dict, settings, dev):
     return res_v, fl, X, Xm, Xh, S
 
 
-def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings, dev, device_lines_hz=()) -> tuple[list, dict]:
+def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings, dev,
+                device_lines_hz=()) -> tuple[list, dict]:
     """Lines the excitation lacks: detect, remove, re-estimate the floor, detect again (a strong
     line leaks into the off-grid bins of a rectangular frame and would raise the floor).
 

@@ -220,8 +220,8 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
         cand.reasons.append("the model with it delevitates in most replays (the measured rotor does not)")
     # its size, in its own fit (when that converged: an unconverged fit's last step joins its
     # covariance): every calibrated parameter is refitted with a candidate, and their refit alone
-    # can improve held-out data a little (measured: z 2.6-2.9 for a 0.001 cross coupling and an
-    # 8 ns dead time beside a static load); the effect must be more than zero
+    # can improve held-out data a little (z 2.6-2.9 for a 0.001 cross coupling or an 8 ns dead
+    # time beside a static load); the effect must be more than zero
     w_crit = {}
     for sl, m in zip(cand.slices(), cand.models):
         w, k = size_statistic(cand.fit.theta[sl], cand.fit.cov[sl, sl], list(m.params), m.size_params)
@@ -251,8 +251,9 @@ def size_statistic(theta: np.ndarray, cov: np.ndarray, params: list, size_params
 
     It is applied to the joint refit (:func:`_drop_null_effects`), not to a candidate's own
     fit: there an effect's directions can fall outside those the last iteration determined
-    (measured: a 6 N unbalance at 112 Hz that explained 100 % of the held-out excess had the
-    placeholder variance of an unestimated parameter, so a test on it rejected a real effect).
+    (a 6 N unbalance at 112 Hz that explains all of the held-out excess can carry the
+    placeholder variance of an unestimated parameter, and a test on it would reject a real
+    effect).
     """
     idx = [i for i, p in enumerate(params) if size_params is None or p in size_params]
     th = np.asarray(theta, float)[idx]
@@ -260,8 +261,8 @@ def size_statistic(theta: np.ndarray, cov: np.ndarray, params: list, size_params
     # in standard units (the correlation matrix): W does not depend on the parameters' units, and
     # the pseudo-inverse's cut-off then measures collinearity, not scale. On the covariance itself
     # a direction the refit left undetermined (the placeholder variance of an unestimated
-    # parameter, ~4 kg^2 m^2 beside 1e-13) cut off the determined one too (measured: an unbalance
-    # 34 standard errors from zero got W = 6e-12 and was dropped)
+    # parameter, ~4 kg^2 m^2 beside 1e-13) cuts off the determined one too (an unbalance 34
+    # standard errors from zero gets W = 6e-12)
     sd = np.sqrt(np.clip(np.diag(c), 0.0, None))
     ok = sd > 0
     z, r = th[ok] / sd[ok], c[np.ix_(ok, ok)] / np.outer(sd[ok], sd[ok])
@@ -355,7 +356,7 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
         else:
             rejected[name] = rejected.get(name, 0) + 1
     # distinct names: a candidate refitted with all parameters free is listed twice, and a pair of
-    # an effect with itself is two copies of one effect (two 0 N static loads had been accepted so)
+    # an effect with itself is two copies of one effect (two 0 N static loads would pass so)
     promising = list(dict.fromkeys(e["name"] for e in info["candidates"] if e.get("improves")))
     if not passing and len(promising) >= 2 and not fallback:
         # two effects can hide each other: pairs of the candidates that improved held-out data
@@ -380,7 +381,8 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
         ok, fails = consistency(cmp, base.shown or base, settings)
         out.consistent, out.failures = ok, fails
         _log(progress, f"round {rnd}: evidence ranking {info['ranking'] or 'none'}; held-out residual "
-                       f"{'consistent with noise' if ok else 'not consistent with noise'} ({time.perf_counter() - t0:.1f} s)")
+                       f"{'consistent with noise' if ok else 'not consistent with noise'} "
+                       f"({time.perf_counter() - t0:.1f} s)")
         if ok or rnd == settings.max_effects:
             break
         if not order:
@@ -476,8 +478,8 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
     """The accepted effects whose size in the joint refit still differs from zero (Wald test at
     ``alpha`` with the reported covariance, :func:`size_statistic`), and the final model's effect
     specs. An effect accepted in a round can lose its size in the joint refit, once the
-    parameters and the other effects are free together (measured: a second effect, a dead time
-    of 0.0 +- 0.007 us or 2 +- 10 ns, listed beside the rig's real sensor gain or static load);
+    parameters and the other effects are free together (a second effect, a dead time of
+    0.0 +- 0.007 us or 2 +- 10 ns, beside the rig's real sensor gain or static load);
     it moves to ``out.dropped`` with its values, and the final model goes without it."""
     kept, eff = [], []
     for a, m, lo, hi in zip(out.accepted, models, cuts[:-1], cuts[1:]):
@@ -488,7 +490,8 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
             out.dropped.append({"name": m.name, "round": a["round"], "size_chi2": w, "k": k,
                                 "theta": dict(zip(m.params, a["theta"].tolist())),
                                 "se": dict(zip(m.params, a["se"].tolist()))})
-            _log(progress, f"joint refit: {m.name} dropped, its size is consistent with zero (Wald chi2 {w:.3g} on {k})")
+            _log(progress, f"joint refit: {m.name} dropped, its size is consistent with zero "
+                           f"(Wald chi2 {w:.3g} on {k})")
             continue
         kept.append(a)
         eff += m.build(fit.theta[lo:hi])
@@ -501,14 +504,14 @@ def joint_start(cal: Calibration, base: Base, free: list, spare: list, effects_f
     identified parameters where the effects were found, the others at their prior mean.
 
     A conflicting parameter's calibrated value absorbed what the effects now explain, and
-    starting from it counts the effect twice (measured on a draw with a 1.5 us dead time: the
-    refit started at chi2 3.6e6 instead of the base's 760 and stopped, unconverged, with the
-    airgap 7 standard errors off). An unidentified parameter may have absorbed part of an effect
+    starting from it counts the effect twice (with a 1.5 us dead time a refit from there starts
+    at chi2 3.6e6 instead of the base's 760 and stops, unconverged, with the airgap 7 standard
+    errors off). An unidentified parameter may have absorbed part of an effect
     too, and the estimator steps only along directions the data determine
     (:func:`ssamb.closeloop.estimate.map_fit`), so along the others the estimate would stay
     where the calibration left it instead of at the prior mean, which is their maximum a
-    posteriori (measured: a 13 N static load had moved the unidentified rotor mass to -4.8 %,
-    and the coil turns, confounded with it, were reported -2.3 +- 0.9 % for a true 0). What the
+    posteriori (a 13 N static load moves the unidentified rotor mass to -4.8 % in the
+    calibration, and the coil turns, confounded with it, to -2.3 +- 0.9 % for a true 0). What the
     data do determine about them the refit finds again. Without an effect the refit starts
     from the calibration itself.
     """
@@ -567,7 +570,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         out.overrides, out.effects, out.final = cal.overrides(), [], out.calibrated
         ident = cal.ident
         if cal.fit is not None:           # the final model: its errors with the misfit the data show
-            ident = identifiability(cal.fit.info, np.array([sp.prior_sd for sp in specs]), tuple(sp.key for sp in specs),
+            ident = identifiability(cal.fit.info, np.array([sp.prior_sd for sp in specs]),
+                                    tuple(sp.key for sp in specs),
                                     settings.identifiable_ratio, cov=cal.fit.cov_misfit, cov_noise=cal.fit.cov,
                                     relative=tuple(sp.relative for sp in specs))
         out.joint = {"fit": cal.fit, "ident": ident, "theta_cal": cal.theta}

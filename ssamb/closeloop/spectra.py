@@ -278,7 +278,8 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
     """
     t = frame.t_s
     k0 = int(round(f0_hz / frame.df_hz))
-    if frame.periodic and abs(f0_hz / frame.df_hz - k0) < 1e-6 and frame.grid_mask[k0] and not _leaks(frame, segs, sigmas, k0):
+    on_grid = frame.periodic and abs(f0_hz / frame.df_hz - k0) < 1e-6 and frame.grid_mask[k0]
+    if on_grid and not _leaks(frame, segs, sigmas, k0):
         return _grid_line(frame, segs, sigmas, k0)
     names = list(segs)
     proj = {v: _periodic_project(frame, np.asarray(e, float)) for v, e in segs.items()}
