@@ -1,0 +1,141 @@
+"""Close the loop on the experiments of issue 23's table, as a user's rig runs them: the
+identification's current pulses, a multisine on one axis or both, each with the effects the issue
+names. The rig data come from a scenario (the rig's own calibration noise, logging noise); the
+analysis sees only the data; the truth must be found within its standard errors (or a practical
+tolerance), and the oracle -- the truth replayed exactly as the final model is -- must not beat the
+final model on the held-out part by more than the noise allows (the held-out improvement test an
+effect passes to be accepted).
+
+Short records keep them cheap: pulses 0.6 s, multisines of 5 lines (5-25 Hz) over 0.8 s, four
+replays per prediction.
+"""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+from scipy import stats
+
+from ssamb.config import get, load_config
+from ssamb.rig import effective_truth, load_scenario, rig_data
+
+pytestmark = pytest.mark.slow
+
+REPO = Path(__file__).resolve().parent.parent
+WORKERS = min(2, len(os.sched_getaffinity(0)))
+NOISE = {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 11}
+
+
+def _multisine(axis: str) -> dict:
+    return {"kind": "multisine", "point": "position", "axis": axis, "amplitude_m": 1.0e-4, "f_min_hz": 5.0,
+            "f_max_hz": 25.0, "f_resolution_hz": 5.0, "periods": 4, "seed": 4}
+
+
+PULSES = {"kind": "pulses", "point": "current", "axis": "both", "amplitude_a": 0.3, "min_width_s": 2.0e-4,
+          "max_width_s": 4.0e-3, "seed": 5}
+
+
+def analysed(tmp: Path, experiment: dict, effects: list, duration_s: float | None = None):
+    """Rig data of the scenario, the analysis and the oracle: ``(report, oracle z, truth overrides)``.
+
+    The oracle replays the truth as the model can see it (the nominal parameters with the rig's
+    own DCM calibration, :func:`ssamb.rig.effective_truth`, and the true effects) exactly as the
+    final model is replayed, and scores it against the final model on the held-out part
+    (:func:`ssamb.closeloop.fit.holdout_score`: z > 0 when the truth does better)."""
+    from ssamb.closeloop import _analyse
+    from ssamb.closeloop.fit import Base, holdout_score
+
+    cfg = load_config()
+    cfg = {**cfg, "closeloop": {**cfg["closeloop"], "replay_seeds": 4}}
+    sc = {"config": str(REPO / "config.yaml"), "experiment": experiment, "effects": effects, "noise": NOISE}
+    if duration_s is not None:
+        sc["duration_s"] = duration_s
+    p = tmp / "rig.yaml"
+    p.write_text(yaml.safe_dump(sc))
+    scenario = load_scenario(p)
+    arrays, meta = rig_data(scenario)
+    rep, art = _analyse(arrays, meta, cfg, workers=WORKERS)
+    truth = effective_truth(scenario, {k: 0.0 for k in cfg["closeloop"]["calibration"]})
+    ov = {k: get(cfg, k) * (1 + d) if get(cfg, k) != 0 else d for k, d in truth.items()}
+    cmp, search = art["comparison"], art["search"]
+    try:
+        pred = cmp.prediction(ov, effects)
+        hs = holdout_score(cmp, Base(search.overrides, search.effects, search.final), pred, ov, effects, 0,
+                           art["settings"])
+    finally:
+        cmp.replay.close()
+    return rep, hs["z"]
+
+
+def _z_crit() -> float:
+    return float(stats.norm.isf(load_config()["closeloop"]["alpha_accept"]))
+
+
+def _delays(rep: dict) -> dict:
+    """Reported sensor delays per axis: ``axis -> (value, standard error)``."""
+    out = {}
+    for e in rep["effects"]:
+        if e["name"] == "sensor_delay":
+            per = e.get("per_axis") or {e["params"]["axis"]: {"delay_s": e["params"]["delay_s"],
+                                                              "se": e["uncertainty"]["delay_s"]}}
+            out.update({a: (d["delay_s"], d["se"]) for a, d in per.items()})
+    return out
+
+
+def _near(value: float, se: float, truth: float, tol: float) -> bool:
+    return abs(value - truth) <= max(3 * se, tol)
+
+
+def test_row1_static_load_on_current_pulses(tmp_path):
+    """Row 1: the identification's current pulses on a rig with an 8 N load on x: the load is found
+    (its DC offset of the x coil currents), nothing else; the oracle does not beat the final model."""
+    rep, z = analysed(tmp_path, PULSES, [{"name": "static_load", "fx_n": 8.0, "fy_n": 0.0}], duration_s=0.6)
+    assert [e["name"] for e in rep["effects"]] == ["static_load"], rep["summary"]
+    e = rep["effects"][0]
+    assert _near(e["params"]["fx_n"], e["uncertainty"]["fx_n"], 8.0, 0.8), e
+    assert z <= _z_crit(), z
+
+
+def _known_failure(reason: str):
+    """A row the search does not yet pass (strict: a pass makes the marker fail, to be removed)."""
+    return pytest.mark.xfail(strict=True, reason=reason)
+
+
+@pytest.mark.parametrize("axis", [
+    pytest.param("y", marks=_known_failure("the unexcited x axis' delay comes out at 34.8 +- 0.4 us")),
+    pytest.param("both", marks=_known_failure("the truth beats the final model on held-out data (z 5.6)"))])
+def test_rows2_3_sensor_delay_with_one_or_both_axes_excited(tmp_path, axis):
+    """Rows 2 and 3: a 37 us sensor delay on both axes, a 100 um multisine on y only or on both
+    axes: the delay is found on every axis it is reported on (the logged controller outputs at the
+    PWM's aliased lines pin it), within its standard errors; an axis the data determine poorly is
+    reported with a large standard error or not at all; the oracle does not beat the final model."""
+    rep, z = analysed(tmp_path, _multisine(axis), [{"name": "sensor_delay", "axis": "both", "delay_s": 37e-6}])
+    assert {e["name"] for e in rep["effects"]} == {"sensor_delay"}, rep["summary"]
+    d = _delays(rep)
+    assert "y" in d and (axis == "y" or "x" in d), d
+    for ax, (v, se) in d.items():
+        assert _near(v, se, 37e-6, 1e-6), (ax, v, se)
+    assert z <= _z_crit(), z
+
+
+@pytest.mark.parametrize("axis", [
+    pytest.param("y", marks=_known_failure("the load is not found beside the delay")),
+    pytest.param("both", marks=_known_failure("the y delay comes out at 10.8 +- 0.6 us: the delay's fit stalls"))])
+def test_rows4_5_a_load_beside_a_delay(tmp_path, axis):
+    """Rows 4 and 5: a 15 us y sensor delay and a -4 N y load, a multisine on y or on both axes:
+    both are found (the load is not absorbed by the rotor mass, airgap and turns; it is kept beside
+    the larger delay), within their standard errors; the oracle does not beat the final model."""
+    true = [{"name": "sensor_delay", "axis": "y", "delay_s": 15e-6}, {"name": "static_load", "fx_n": 0.0, "fy_n": -4.0}]
+    rep, z = analysed(tmp_path, _multisine(axis), true)
+    assert {e["name"] for e in rep["effects"]} == {"sensor_delay", "static_load"}, rep["summary"]
+    d = _delays(rep)
+    assert "y" in d and _near(*d["y"], 15e-6, 1e-6), d
+    if "x" in d:
+        assert _near(*d["x"], 0.0, 1e-6), d
+    load = next(e for e in rep["effects"] if e["name"] == "static_load")
+    assert _near(load["params"]["fy_n"], load["uncertainty"]["fy_n"], -4.0, 0.4), load
+    assert math.isclose(load["params"]["fx_n"], 0.0, abs_tol=max(3 * load["uncertainty"]["fx_n"], 0.4)), load
+    assert z <= _z_crit(), z
