@@ -104,7 +104,8 @@ def test_amb_sensor_gain_on_y_is_the_dcm_calibration():
 
 def test_amb_effect_report_entries_merge_agreeing_axes():
     d = get_device("amb")
-    m = d.effect_model("sensor_delay", {"axes": ["x", "y"]}, SimpleNamespace(excited_axes=("x", "y")), None)
+    m = d.effect_model("sensor_delay", {"axes": ["x", "y"]}, SimpleNamespace(excited_axes=("x", "y"), fs_hz=83300.0),
+                       None)
     ent = d.report_entries(m, [30e-6, 30.5e-6], [1e-6, 1e-6], [True, True])
     assert len(ent) == 1 and ent[0]["params"]["axis"] == "both"
     w = 1 / 1e-12
@@ -112,6 +113,20 @@ def test_amb_effect_report_entries_merge_agreeing_axes():
     assert ent[0]["uncertainty"]["delay_s"] == pytest.approx(1 / math.sqrt(2 * w))
     ent = d.report_entries(m, [30e-6, 60e-6], [1e-6, 1e-6], [True, True])
     assert [e["params"]["axis"] for e in ent] == ["x", "y"]
+
+
+def test_sensor_delay_starts_in_every_sample_interval():
+    """The delay's coarse starts: an axis without a hint at four points of every controller sample
+    interval up to 120 us (the interpolated delay's cost has a kink at every
+    whole sample); an axis with a hint only in its interval and the two beside it."""
+    d = get_device("amb")
+    ts = 1 / 83300.0
+    rec = SimpleNamespace(excited_axes=("y",), fs_hz=83300.0)
+    m = d.effect_model("sensor_delay", {"axes": ["x"], "delay_x": 30e-6}, rec, None)
+    y = sorted({round(g[1] / ts, 6) for g in m.grid if g[0] == m.theta0[0]})
+    assert y == [0.0] + [k + f for k in range(10) for f in (0.125, 0.375, 0.625, 0.875)]
+    x = sorted({round(g[0] / ts, 6) for g in m.grid if g[1] == m.theta0[1]} - {round(30e-6 / ts, 6)})
+    assert x == [k + f for k in (1, 2, 3) for f in (0.125, 0.375, 0.625, 0.875)]
 
 
 def test_validate_effect_through_the_device():

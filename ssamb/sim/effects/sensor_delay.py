@@ -107,25 +107,35 @@ def model(hints: dict, record, st) -> EffectModel | str:
     return EffectModel(NAME, tuple(f"delay_{a}_s" for a in axes), th, np.full(len(axes), 1e-6),
                        np.zeros(len(axes)), np.full(len(axes), 2.4e-3),
                        lambda t: [{"name": NAME, "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
-                       {"axes": axes}, _grid(th, hinted))
+                       {"axes": axes}, _grid(th, hinted, 1.0 / float(record.fs_hz)))
 
 
-def _grid(th: np.ndarray, hinted: tuple) -> tuple:
-    r"""Coarse starts of a fit for the axes whose evidence gives no delay: each such axis alone
-    every 10 us from 0 to 120 us (the other at its start), and both at 5-120 us every 5 us when
-    neither has one. The PWM carrier's aliased lines (6.7-40 kHz) turn a delay into phases
-    :math:`2\pi f\tau` of a cycle or more, so the cost has a minimum every few tens of
-    microseconds, and a local fit from far below the truth (the excited lines' slope is blind to
-    a delay of a few tens of microseconds at 26 Hz) stops at the wrong one."""
+def _grid(th: np.ndarray, hinted: tuple, ts: float, top: float = 120e-6) -> tuple:
+    r"""Coarse starts of a fit: four per controller sample interval, at its eighths 1, 3, 5 and 7
+    of each interval :math:`[kT_s, (k+1)T_s)` up to ``top``, and no delay.
+
+    The model delays the sensed position by :math:`\tau = (m + r) T_s` through linear
+    interpolation between two stored samples, :math:`(1-r)x_{n-m} + r x_{n-m-1}`, a filter whose
+    gain near the Nyquist frequency, :math:`|1 - 2r|`, falls to zero at half a sample and rises
+    again: the controller outputs at the PWM carrier's aliased lines (up to the Nyquist frequency)
+    change with the fraction :math:`r`, the cost has a kink at every whole sample and similar
+    values at :math:`r` and :math:`1 - r`. A local fit crosses neither, so it must start near the
+    truth: an axis whose evidence gives no delay is started in every interval up to ``top`` (the
+    other axis at its start; both axes together as well when neither has a delay), an axis with
+    one (the excited lines' slope, blind to a few microseconds at tens of hertz) in the interval
+    of its hint and the two beside it.
+    """
+    q = [0.0] + [(k + f) * ts for k in range(int(np.ceil(top / ts))) for f in (0.125, 0.375, 0.625, 0.875)
+                 if (k + f) * ts <= top]
+    q = np.array(q)
     pts = []
     if not any(hinted):
-        pts += [np.array([d, d]) for d in np.arange(5e-6, 121e-6, 5e-6)]
+        pts += [np.array([d, d]) for d in q[1:]]
     for i, h in enumerate(hinted):
-        if not h:
-            for d in np.arange(0.0, 121e-6, 10e-6):
-                t = th.copy()
-                t[i] = d
-                pts.append(t)
+        for d in (q[np.abs(q - th[i]) <= 1.5 * ts] if h else q):
+            t = th.copy()
+            t[i] = d
+            pts.append(t)
     return tuple(pts)
 
 
