@@ -1,15 +1,20 @@
 """Shared fixtures: the smoke workflow, run once per test session in a copy of the repository
-(tests/test_workflow_smoke.py and tests/test_workflow_repro.py both read it), and a second clean
-run for the byte-reproducibility test. Both start in the background as soon as the tests are
-collected and run beside the other tests."""
+(tests/test_workflow_*.py read it; it starts in the background as soon as the tests are collected
+and runs beside the other tests), and the grouping of tests that share a costly fixture on one
+pytest-xdist worker."""
 from __future__ import annotations
 
 import atexit
+import fcntl
 import functools
+import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -33,23 +38,53 @@ SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 SMOKE_ARGS = ("--configfile", "config.yaml", "smoke.yaml")
 
 
-@functools.lru_cache(maxsize=1)
-def smoke_rig() -> Path:
-    """A 0.5 s record of the demo rig (its scenario with a shorter multisine: 10-100 Hz in 10 Hz
-    steps, five periods), made once per session: the smoke workflow closes the loop on it
-    (``resources/rig_smoke.npz`` in the copy; the shipped 2 s record costs four times as much)."""
+def _shared_root() -> Path | None:
+    """The folder every process of this test session shares (with pytest-xdist the workers'
+    base folders are inside it); None outside a test session (``bench/bad_inputs.py``)."""
+    if _CONFIG is None:
+        return None
+    base = _CONFIG._tmp_path_factory.getbasetemp()
+    return base.parent if hasattr(_CONFIG, "workerinput") else base
+
+
+def _once(name: str, make) -> Path:
+    """``make(folder)`` in exactly one process of the test session; the others wait for it and
+    get the same folder."""
+    root = _shared_root()
+    if root is None:
+        where = Path(tempfile.mkdtemp(prefix=f"ssamb-{name}-"))
+        atexit.register(shutil.rmtree, where, True)
+        make(where)
+        return where
+    where = root / name
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (where / ".done").exists():
+            shutil.rmtree(where, ignore_errors=True)
+            where.mkdir()
+            make(where)
+            (where / ".done").touch()
+    return where
+
+
+def _make_smoke_rig(where: Path) -> None:
     import yaml
 
     from ssamb.rig import run_scenario
 
-    where = Path(tempfile.mkdtemp(prefix="ssamb-smoke-rig-"))
-    atexit.register(shutil.rmtree, where, True)
     sc = yaml.safe_load((ROOT / "resources" / "scenarios" / "rig_demo.yaml").read_text())
     sc["config"] = str(ROOT / "config.yaml")
     sc["experiment"].update(f_min_hz=10.0, f_resolution_hz=10.0, periods=5)
     (where / "rig_smoke.yaml").write_text(yaml.safe_dump(sc))
     run_scenario(where / "rig_smoke.yaml", where / "rig_smoke.npz", progress=False)
-    return where / "rig_smoke.npz"
+
+
+@functools.lru_cache(maxsize=1)
+def smoke_rig() -> Path:
+    """A 0.5 s record of the demo rig (its scenario with a shorter multisine: 10-100 Hz in 10 Hz
+    steps, five periods), made once per test session: the smoke workflow closes the loop on it
+    (``resources/rig_smoke.npz`` in the copy; the shipped 2 s record costs four times as much)."""
+    return _once("smoke-rig", _make_smoke_rig) / "rig_smoke.npz"
 
 
 def copy_repo(dst: Path) -> None:
@@ -80,68 +115,147 @@ def smoke_run(wd: Path) -> Path:
 
 
 class _Background:
-    """A clean smoke workflow run started as soon as the tests that read it are collected, so
-    that it runs beside the other tests (the session's two cores are both busy); the fixture
-    that needs it waits for it."""
+    """A clean smoke workflow run in ``wd``, started as soon as the tests that read it are
+    collected, so that it runs beside the other tests; the fixture that needs it waits for it.
+
+    One process of the test session starts it (with pytest-xdist every worker collects every
+    test; the first to create ``wd`` wins), any process waits for it: the run leaves its exit
+    status in ``snakemake.rc``, its log in ``snakemake.log`` and its process group in
+    ``snakemake.pid``."""
 
     def __init__(self, wd: Path):
-        copy_repo(wd)
         self.wd = wd
-        self.log = open(wd / "snakemake.log", "w")
-        self.proc = subprocess.Popen(SNAKEMAKE + ["--cores", "2", *SMOKE_ARGS], cwd=wd, stdout=self.log,
-                                     stderr=subprocess.STDOUT)
 
-    def result(self) -> Path:
-        rc = self.proc.wait()
-        self.log.close()
-        if rc != 0:
+    def start(self) -> bool:
+        """Start the run unless another process of the session has; True if this one did."""
+        try:
+            self.wd.mkdir()
+        except FileExistsError:
+            return False
+        try:
+            copy_repo(self.wd)
+            self.proc = subprocess.Popen(
+                ["/bin/sh", "-c", '"$@" > snakemake.log 2>&1; echo $? > snakemake.rc', "sh", *SNAKEMAKE,
+                 "--cores", "2", *SMOKE_ARGS], cwd=self.wd, start_new_session=True)
+        except BaseException as e:
+            (self.wd / "snakemake.log").write_text(f"the smoke run could not start: {e!r}")
+            (self.wd / "snakemake.rc").write_text("-1")
+            raise
+        (self.wd / "snakemake.pid").write_text(str(self.proc.pid))
+        _STARTED.append(self.proc)
+        return True
+
+    def result(self, timeout_s: float = 3600.0) -> Path:
+        rc, t0 = self.wd / "snakemake.rc", time.monotonic()
+        while not rc.exists():
+            if time.monotonic() - t0 > timeout_s:
+                raise AssertionError(f"the smoke workflow in {self.wd} did not end in {timeout_s:.0f} s")
+            time.sleep(1.0)
+        time.sleep(0.1)                         # the status is written
+        status = rc.read_text().strip()
+        if status != "0":
             tail = (self.wd / "snakemake.log").read_text()[-6000:]
-            raise AssertionError(f"the smoke workflow in {self.wd} failed (exit {rc}):\n{tail}")
+            raise AssertionError(f"the smoke workflow in {self.wd} failed (exit {status}):\n{tail}")
         return self.wd
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-        self.log.close()
+        """End the run if it is still going (the test session ends)."""
+        pid = self.wd / "snakemake.pid"
+        if not pid.exists() or (self.wd / "snakemake.rc").exists():
+            return
+        try:
+            os.killpg(int(pid.read_text()), signal.SIGTERM)
+        except (ProcessLookupError, ValueError):
+            pass
 
 
-#: the smoke runs under way, by fixture name
-_RUNS: dict[str, _Background] = {}
 #: fixtures backed by a clean smoke run of their own
-SMOKE_FIXTURES = ("smoke_workdir", "smoke_second_workdir")
+SMOKE_FIXTURES = ("smoke_workdir",)
+#: fixtures of module scope shared by several tests and costly to make: with pytest-xdist the
+#: tests that use one run on the same worker, which makes it once (the smoke workflow is shared
+#: between the workers by its folder: the tests only read it)
+SHARED_FIXTURES = ("written", "rig_pair", "heavier_rig", "chain", "data", "model", "plant_and_physics", "pid",
+                   "known")
+_CONFIG = None
+#: the smoke runs this process started (it reaps them)
+_STARTED: list[subprocess.Popen] = []
+
+
+def pytest_configure(config):
+    global _CONFIG
+    _CONFIG = config
+
+
+def _run(name: str) -> _Background:
+    return _Background(_shared_root() / name.replace("_workdir", ""))
+
+
+def pytest_collection_modifyitems(config, items):
+    """With pytest-xdist, each worker writes which tests share a costly fixture (``groups.json``
+    in the session's folder), for the scheduler (:func:`pytest_xdist_make_scheduler`)."""
+    if not hasattr(config, "workerinput"):
+        return
+    groups = {}
+    for item in items:
+        shared = sorted(set(getattr(item, "fixturenames", ())) & set(SHARED_FIXTURES))
+        if shared:
+            groups[item.nodeid] = shared[0]
+    tmp = _shared_root() / f"groups.json.{os.getpid()}"
+    tmp.write_text(json.dumps(groups))
+    os.replace(tmp, _shared_root() / "groups.json")
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadgroup``: the tests that share a costly fixture (SHARED_FIXTURES) are one unit
+    of work, sent to one worker; every other test is a unit of its own. (pytest-xdist's own
+    ``loadgroup`` marks the group in the node id, which pytest 9.2 no longer lets it change.)"""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedFixtureScheduling(LoadScopeScheduling):
+        groups: dict | None = None
+
+        def _split_scope(self, nodeid: str) -> str:
+            if self.groups is None:         # all workers have collected (and written the groups)
+                path = config._tmp_path_factory.getbasetemp() / "groups.json"
+                self.groups = json.loads(path.read_text()) if path.exists() else {}
+            group = self.groups.get(nodeid)
+            return f"shared fixture {group}" if group else nodeid
+
+    return SharedFixtureScheduling(config, log)
 
 
 def pytest_collection_finish(session):
     """Start the smoke runs the selected tests need (one per fixture, at most two per session)."""
     needed = {f for item in session.items for f in getattr(item, "fixturenames", ())}
-    factory = session.config._tmp_path_factory
     for name in SMOKE_FIXTURES:
-        if name in needed and name not in _RUNS:
-            _RUNS[name] = _Background(factory.mktemp(name.replace("_workdir", "")))
+        if name in needed:
+            _run(name).start()
 
 
 def pytest_sessionfinish(session):
-    for run in _RUNS.values():
-        run.stop()
+    """The process that ends the session (not a pytest-xdist worker) ends the smoke runs."""
+    if hasattr(session.config, "workerinput"):    # another worker may still wait for its runs
+        return
+    for name in SMOKE_FIXTURES:
+        _run(name).stop()
+    for proc in _STARTED:
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
-def _smoke(name: str, tmp_path_factory) -> Path:
-    if name not in _RUNS:                   # collected another way: start it now
-        _RUNS[name] = _Background(tmp_path_factory.mktemp(name.replace("_workdir", "")))
-    return _RUNS[name].result()
+def _smoke(name: str) -> Path:
+    run = _run(name)
+    run.start()                             # collected another way: start it now (no-op if started)
+    return run.result()
 
 
 @pytest.fixture(scope="session")
-def smoke_workdir(tmp_path_factory) -> Path:
+def smoke_workdir() -> Path:
     """A finished smoke workflow (shared: tests may dry-run in it, must not change its files)."""
-    return _smoke("smoke_workdir", tmp_path_factory)
+    return _smoke("smoke_workdir")
 
-
-@pytest.fixture(scope="session")
-def smoke_second_workdir(tmp_path_factory) -> Path:
-    """A second clean smoke workflow, for the byte-reproducibility test."""
-    return _smoke("smoke_second_workdir", tmp_path_factory)
