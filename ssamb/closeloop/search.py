@@ -298,15 +298,24 @@ def _round(cmp, base, settings, rnd, rejected):
     return info, order, ft, ev
 
 
-def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, progress) -> Candidate:
+def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, progress,
+         starts: dict | None = None) -> Candidate:
+    """Fit and judge the effects ``names`` together; ``starts`` (name -> {parameter: value}): where
+    an effect's own fit ended, its start in a pair (a delay's cost has a kink at every whole
+    sample, and a pair is fitted without the single effect's coarse grid)."""
+    import dataclasses
+
     t1 = time.perf_counter()
     models = []
     for n in names:
         m = cmp.device.effect_model(n, dict(ev[n].hints), rec, settings)
         if isinstance(m, str):
             return Candidate(tuple(names), [], None, None, [], reasons=[m if len(names) == 1 else f"{n}: {m}"])
+        st = (starts or {}).get(n) or {}
+        if all(p in st for p in m.params):
+            th0 = np.clip([float(st[p]) for p in m.params], m.lower, m.upper)
+            m = dataclasses.replace(m, theta0=th0)
         models.append(m)
-    import dataclasses
 
     cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations))
     cand = fit_candidate(cmp, base, models, cand_est, seed0, step_rel=settings.calibration_step_rel,
@@ -357,17 +366,24 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
             rejected[name] = rejected.get(name, 0) + 1
     # distinct names: a candidate refitted with all parameters free is listed twice, and a pair of
     # an effect with itself is two copies of one effect (two 0 N static loads would pass so)
-    promising = list(dict.fromkeys(e["name"] for e in info["candidates"] if e.get("improves")))
-    if not passing and len(promising) >= 2 and not fallback:
-        # two effects can hide each other: pairs of the candidates that improved held-out data
-        top = promising[: settings.candidates_per_round]
-        for i in range(len(top)):
-            for j in range(i + 1, len(top)):
-                cand = _try(cmp, base, [top[i], top[j]], ev, rec, settings, est,
-                            10_000 * (rnd + 1) + 5000 + 100 * (i * 10 + j), ft, measured_contact, progress)
-                info["candidates"].append(_entry(cand, rnd, settings))
-                if cand.passed:
-                    passing.append(cand)
+    singles_tried = [e for e in info["candidates"] if "+" not in e["name"]]
+    ranked = sorted((e for e in singles_tried if e.get("improves")), key=lambda e: -(e.get("holdout_z") or 0.0))
+    promising = list(dict.fromkeys(e["name"] for e in ranked))
+    pairs_tried = {e["name"] for e in info["candidates"] if "+" in e["name"]}
+    if not passing and len(promising) >= 2:
+        # two effects can hide each other (a delay that makes a view worse without the load beside
+        # it): the strongest held-out improvement paired with each of the next ones, each effect
+        # started where its own fit ended (the latest fit of that name)
+        starts = {e["name"]: e.get("theta") for e in singles_tried}
+        for j, other in enumerate(promising[1: 1 + settings.candidates_per_round], 1):
+            names = [promising[0], other]
+            if "+".join(names) in pairs_tried:
+                continue
+            cand = _try(cmp, base, names, ev, rec, settings, est, 10_000 * (rnd + 1) + 5000 + 100 * j, ft,
+                        measured_contact, progress, starts=starts)
+            info["candidates"].append(_entry(cand, rnd, settings))
+            if cand.passed:
+                passing.append(cand)
     return passing
 
 
@@ -414,8 +430,9 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
             break
         # the candidate that explains the most of every view's excess, not the one that removes
         # the most chi-square from the largest view (a gain can shrink a big residual in one view
-        # that another effect explains in all): the mean share, the chi-square as tie-break
-        best = max(passing, key=lambda c: (c.score["explained"], c.score["delta_chi2"]))
+        # that another effect explains in all): the mean share, the chi-square as tie-break. A share
+        # above one explains all of the excess and the rest is the noise's: it counts as one
+        best = max(passing, key=lambda c: (min(c.score["explained"], 1.0), c.score["delta_chi2"]))
         for sl, m in zip(best.slices(), best.models):
             th = best.fit.theta[sl]
             se = best.fit.se[sl]
