@@ -61,7 +61,7 @@ def _start(wd, log):
 def test_what_an_interruption_leaves(tmp_path):
     copy_repo(tmp_path)
     # a simulation of some seconds: long enough to be interrupted, short enough to be waited for
-    (tmp_path / "long.yaml").write_text("experiments: {levitate: {duration_s: 3.0, start: rest, excitation: "
+    (tmp_path / "long.yaml").write_text("experiments: {levitate: {duration_s: 10.0, start: rest, excitation: "
                                         "{kind: none}}}\nsimulation: {substeps: 20}\n")
     out = tmp_path / "results" / "sim" / "levitate.npz"
     log = tmp_path / "results" / "logs" / "simulate" / "levitate.log"
