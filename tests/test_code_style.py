@@ -97,17 +97,17 @@ def test_ruff_check_is_clean():
 
 
 def test_no_file_outside_the_repository_is_referred_to():
-    """The repository documents itself: no path to a sibling folder (``../shared/...``) or to a
-    contract document it does not hold."""
-    outside = re.compile(r"\.\./shared|/work/shared|ARCHITECTURE\.md|seed-paper\.md")
+    """The repository documents itself: no path to the sibling folder of shared documents, nor to
+    a contract document or paper file it does not hold (the pattern is assembled from its parts,
+    so that this file passes its own check)."""
+    shared, names = "shar" + "ed", ("ARCHITEC" + "TURE", "seed-" + "paper")
+    outside = re.compile(rf"\.\./{shared}|/work/{shared}|" + "|".join(rf"{n}\.md" for n in names))
     files = [*ROOT.glob("*.md"), *ROOT.glob("docs/**/*.md"), *ROOT.glob("docs/**/*.py"),
              *ROOT.glob("ssamb/**/*.py"), *ROOT.glob("workflow/**/*"), ROOT / "Snakefile", ROOT / "config.yaml",
              *ROOT.glob("bench/*.py"), *ROOT.glob("tests/*.py")]
     hits = []
     for f in sorted(set(files)):
-        rel = str(f.relative_to(ROOT))
-        if (not f.is_file() or f == Path(__file__).resolve() or "_build" in f.parts
-                or rel.startswith("tests/test_closeloop")):
+        if not f.is_file() or "_build" in f.parts:
             continue
         for n, line in enumerate(f.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
             if outside.search(line):
