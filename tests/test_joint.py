@@ -150,14 +150,19 @@ def _mu(loop, weights):
     return mu_for_case(loop, weights, "selfsensing", log_grid(1.0, 2000.0, 200))
 
 
-def test_peak_cause_finds_a_known_lightly_damped_pole():
-    from ssamb.peak_cause import peak_cause
-
-    f0, zeta = 60.0, 0.05
+def _resonant_loop(f0: float = 60.0, zeta: float = 0.05):
+    """A loop with one lightly damped closed-loop pole pair (f0, zeta) and a fast real pole at 800
+    rad/s, a flat unit weight, and its mu sweep: ``(f0, zeta, loop, weights, sweep)``."""
     w0 = 2 * np.pi * f0
     loop = _siso_loop([w0 ** 2 * 800.0], np.polymul([1, 2 * zeta * w0, w0 ** 2], [1, 800.0]))
     weights = {"selfsensing": control.tf([1.0], [1.0])}
-    sweep = _mu(loop, weights)
+    return f0, zeta, loop, weights, _mu(loop, weights)
+
+
+def test_peak_cause_finds_a_known_lightly_damped_pole():
+    from ssamb.peak_cause import peak_cause
+
+    f0, zeta, loop, weights, sweep = _resonant_loop()
     a = 2 * np.pi * 40.0
     plant = IdentifiedModel(np.array([[np.exp(a * DT)]]), np.ones((1, 1)), np.ones((1, 1)), np.zeros((1, 1)), DT,
                             "x", ("i",), ("y",), False)
@@ -186,11 +191,7 @@ def _sensor(zero_z: float) -> IdentifiedModel:
 def test_peak_cause_names_a_near_cancellation_with_a_zero_of_the_self_sensing_model():
     from ssamb.peak_cause import peak_cause, sensor_zeros
 
-    f0, zeta = 60.0, 0.05
-    w0 = 2 * np.pi * f0
-    loop = _siso_loop([w0 ** 2 * 800.0], np.polymul([1, 2 * zeta * w0, w0 ** 2], [1, 800.0]))
-    weights = {"selfsensing": control.tf([1.0], [1.0])}
-    sweep = _mu(loop, weights)
+    f0, zeta, loop, weights, sweep = _resonant_loop()
     z_at = np.exp(-2 * np.pi * 55.0 * DT)  # a real zero at 55 Hz, next to the 60 Hz pole
     zeros, dc = sensor_zeros(_sensor(z_at), DT)
     assert zeros[0]["f_hz"] == pytest.approx(55.0, rel=1e-9)
