@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -22,8 +23,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def _children_cpu_s() -> float:
+    """CPU seconds (user + system) of every finished child process and its descendants."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
 def _run(wd: Path, *targets: str, configfiles: tuple = ()) -> float:
     load0 = os.getloadavg()[0]
+    cpu0 = _children_cpu_s()
     t0 = time.perf_counter()
     extra = ["--configfile", *configfiles] if configfiles else []
     r = subprocess.run([sys.executable, "-m", "snakemake", *targets, "--cores", "2", *extra], cwd=wd,
@@ -33,7 +41,7 @@ def _run(wd: Path, *targets: str, configfiles: tuple = ()) -> float:
         print(r.stdout[-3000:], r.stderr[-3000:])
         raise SystemExit(f"snakemake {' '.join(targets)} failed")
     print(f"snakemake --cores 2 {' '.join(targets)}: {wall / 60:.2f} min (load average at start {load0:.2f}, "
-          f"at the end {os.getloadavg()[0]:.2f})")
+          f"at the end {os.getloadavg()[0]:.2f}); {_children_cpu_s() - cpu0:.0f} CPU s in all its processes")
     return wall
 
 

@@ -101,8 +101,10 @@ try:
 
     #: run prefixes of the scenarios the default target runs
     SCENARIO_RUNS = [run_prefix(n) for n in default_scenarios(config)]
-    #: chain -> run prefixes of its realisations (the noise ensembles, config `ensemble`)
-    ENSEMBLE_RUNS = {c: [run_prefix(realisation_name(c, k)) for k in range(int(config["ensemble"]["realisations"]))]
+    #: chain -> [(run name, its summary.json), ...] of its realisations, realisation 0 first
+    #: (the noise ensembles, config `ensemble`)
+    ENSEMBLE_RUNS = {c: [(n, f"results/{run_prefix(n)}summary.json")
+                         for n in (realisation_name(c, k) for k in range(int(config["ensemble"]["realisations"])))]
                      for c in ensemble_chains(config)} if config.get("ensemble") else {}
 except ConfigError as _err:
     _stop(_err)

@@ -34,14 +34,14 @@ rule ensemble_collect:
     """Per chain and headline: median and range over the realisations, the ceilings, the
     stability and delevitation fractions, which chain reproduces which of the paper's headlines."""
     input:
-        summaries=[f"results/{r}summary.json" for runs in ENSEMBLE_RUNS.values() for r in runs],
+        summaries=[summary for runs in ENSEMBLE_RUNS.values() for _, summary in runs],
         fig4="results/ceiling/fig4.json",
         validation="results/ceiling/validation.json",
     output:
         json="results/ensemble/ensemble.json",
         fig="results/ensemble/ensemble.png",
     params:
-        chains={c: runs for c, runs in ENSEMBLE_RUNS.items()},
+        chains=ENSEMBLE_RUNS,
         criteria=(config.get("ensemble") or {}).get("criteria"),
     log:
         "results/ensemble/logs/collect.log",

@@ -5,7 +5,5 @@ from ssamb.stages.ensemble import collect_ensemble
 
 with job_log(snakemake.log[0], "ensemble"):  # noqa: F821
     inp, par = snakemake.input, snakemake.params  # noqa: F821
-    chains = {c: [(r.strip("/").split("/", 1)[1], f"results/{r}summary.json") for r in runs]
-              for c, runs in par.chains.items()}
-    collect_ensemble(chains, {"fig4": inp.fig4, "validation": inp.validation}, par.criteria,
+    collect_ensemble(par.chains, {"fig4": inp.fig4, "validation": inp.validation}, par.criteria,
                      snakemake.output.json, snakemake.output.fig)  # noqa: F821
