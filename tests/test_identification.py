@@ -6,6 +6,8 @@ import json
 import numpy as np
 import pytest
 import scipy.signal
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ssamb.io import DataError
 from ssamb.identification import (
@@ -20,6 +22,7 @@ from ssamb.identification import (
     subspace_singular_values,
     subsystem_io,
 )
+from ssamb.identification.model import _state_regressors
 from ssamb.model_io import load_model, save_model
 
 # ---------------------------------------------------------------------------------------
@@ -464,12 +467,12 @@ def test_memo_gives_bit_identical_models_and_reuses_the_shared_work(data):
     runs = [("N4SID", 4, False), ("MOESP", 4, False), ("CVA", 4, False), ("PARSIM-K", 4, False),
             ("N4SID", 4, True), ("MOESP", 3, False), ("PARSIM-K", 3, False)]
     with no_memo():
-        fresh = [identify(u, y, n, meth, FS, ss_f=12, ss_p=12, A_stability=st) for meth, n, st in runs]
+        fresh = [identify(u, y, n, meth, FS, ss_f=12, ss_p=12, A_stability=stab) for meth, n, stab in runs]
     with identification_memo() as memo:
-        shared = [identify(u, y, n, meth, FS, ss_f=12, ss_p=12, A_stability=st) for meth, n, st in runs]
+        shared = [identify(u, y, n, meth, FS, ss_f=12, ss_p=12, A_stability=stab) for meth, n, stab in runs]
     assert memo.hits >= 10
-    for (meth, n, st), a, b in zip(runs, fresh, shared):
-        assert _matrices(a) == _matrices(b), (meth, n, st)
+    for (meth, n, stab), a, b in zip(runs, fresh, shared):
+        assert _matrices(a) == _matrices(b), (meth, n, stab)
     # outside the block SIPPY is untouched and nothing is kept
     from sippy_unipi import OLSims_methods, functionsetSIM
 
@@ -487,3 +490,31 @@ def test_memo_hands_out_read_only_arrays():
         with pytest.raises(ValueError):
             a[0] = 1.0
     assert memoised("twice", lambda x: 3 * x, np.arange(3.0))[1] == 3.0  # no memo outside
+
+
+# ---------------------------------------------------------------------------------------
+# the compiled regressor recursion of the least-squares refinement
+# ---------------------------------------------------------------------------------------
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(0, 4), l_=st.integers(1, 3), q=st.integers(1, 3), N=st.integers(0, 12),
+       seed=st.integers(0, 2**32 - 1))
+def test_state_regressors_are_the_derivative_of_the_output_by_the_input_matrix(n, l_, q, N, seed):
+    """R[t, :, j, k] = sum_{s<t} C F^(t-1-s) e_j w[s, k], summed term by term, and the
+    output of x+ = F x + G w is linear in G: y = sum_jk G_jk R[:, :, j, k]."""
+    rng = np.random.default_rng(seed)
+    F = 0.5 * rng.normal(size=(n, n))
+    C, w = rng.normal(size=(l_, n)), rng.normal(size=(N, q))
+    R = _state_regressors(F, C, w)
+    assert R.shape == (N, l_, n, q)
+    expect = np.zeros((N, l_, n, q))
+    for t in range(N):
+        for s in range(t):
+            P = C @ np.linalg.matrix_power(F, t - 1 - s)  # (l, n): column j is C F^(t-1-s) e_j
+            expect[t] += P[:, :, None] * w[s][None, None, :]
+    np.testing.assert_allclose(R, expect, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(expect).max(initial=0)))
+    G = rng.normal(size=(n, q))
+    x, y = np.zeros(n), np.zeros((N, l_))
+    for t in range(N):
+        y[t] = C @ x
+        x = F @ x + G @ w[t]
+    np.testing.assert_allclose(np.einsum("tljk,jk->tl", R, G), y, rtol=1e-10, atol=1e-10)

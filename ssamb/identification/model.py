@@ -31,26 +31,63 @@ def _simulate(A, B, C, D, w, x0):
     return np.asarray(xout).reshape(N, n), np.asarray(yout).reshape(N, C.shape[0])
 
 
+_KERNELS: dict = {}
+
+
+def _state_regressors_kernel():
+    """The compiled recursion of :func:`_state_regressors` (numba, compiled once per process
+    and cached on disk): explicit loops, no temporaries in the time loop."""
+    if "state" not in _KERNELS:
+        import numba  # imported where needed: jobs that never refine a model do not pay for it
+
+        @numba.njit(cache=True)
+        def state(F, C, w, out):  # pragma: no cover - compiled
+            n = F.shape[0]
+            N, q = w.shape
+            l_ = C.shape[0]
+            Z = np.zeros((n, n * q))
+            Znew = np.zeros((n, n * q))
+            for t in range(N):
+                for a in range(l_):
+                    for c in range(n * q):
+                        acc = 0.0
+                        for i in range(n):
+                            acc += C[a, i] * Z[i, c]
+                        out[t, a, c] = acc
+                for i in range(n):
+                    for c in range(n * q):
+                        acc = 0.0
+                        for m in range(n):
+                            acc += F[i, m] * Z[m, c]
+                        Znew[i, c] = acc
+                for j in range(n):
+                    for k in range(q):
+                        Znew[j, j * q + k] += w[t, k]
+                Z, Znew = Znew, Z
+
+        _KERNELS["state"] = state
+    return _KERNELS["state"]
+
+
 def _state_regressors(F, C, w):
     r"""Output responses to unit entries of the input matrix.
 
     Returns ``R`` of shape (N, l, n, q) with
     :math:`R_{t,:,j,k} = \sum_{s<t} C F^{t-1-s} e_j w_{s,k}`, i.e. the derivative of the
-    output of :math:`x^+ = F x + G w` with respect to :math:`G_{jk}`.
+    output of :math:`x^+ = F x + G w` with respect to :math:`G_{jk}`. The state responses
+    :math:`Z_t` (n, n, q) follow :math:`Z_{t+1} = F Z_t + e_j w_{t,k}` and
+    :math:`R_t = C Z_t`: a compiled loop over the N samples (a NumPy loop pays its
+    per-call overhead on matrices of a few dozen entries at every sample).
     """
+    F = np.ascontiguousarray(F, dtype=float)
+    C = np.ascontiguousarray(C, dtype=float)
+    w = np.ascontiguousarray(w, dtype=float)
     n = F.shape[0]
     N, q = w.shape
-    l_ = C.shape[0]
-    Z = np.zeros((n, n, q))  # Z[:, j, k]: state response to e_j w_k
-    diag = np.arange(n)
-    out = np.empty((N, l_, n * q))
-    with np.errstate(all="ignore"):
-        for t in range(N):
-            Z2 = Z.reshape(n, n * q)
-            out[t] = C @ Z2
-            Z = (F @ Z2).reshape(n, n, q)
-            Z[diag, diag, :] += w[t]
-    return out.reshape(N, l_, n, q)
+    out = np.zeros((N, C.shape[0], n * q))
+    if n and N:
+        _state_regressors_kernel()(F, C, w, out)
+    return out.reshape(N, C.shape[0], n, q)
 
 
 def _obs_regressors(F, C, N):
