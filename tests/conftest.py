@@ -190,11 +190,23 @@ def _run(name: str) -> _Background:
     return _Background(_shared_root() / name.replace("_workdir", ""))
 
 
+def _cost_rank(item) -> tuple[int, int]:
+    """Where a test goes in the queue of the two workers: the costly ones first, so that the
+    session does not end on one long test while the other worker idles (marked ``slow`` or
+    ``workflow``: 0, the rest: 1), and the tests that read the smoke workflow last (it runs in
+    the background meanwhile; among them the slow ones first)."""
+    costly = item.get_closest_marker("slow") is not None or item.get_closest_marker("workflow") is not None
+    smoke = bool(set(getattr(item, "fixturenames", ())) & set(SMOKE_FIXTURES))
+    return (int(smoke), int(item.get_closest_marker("slow") is None) if smoke else int(not costly))
+
+
 def pytest_collection_modifyitems(config, items):
-    """With pytest-xdist, each worker writes which tests share a costly fixture (``groups.json``
-    in the session's folder), for the scheduler (:func:`pytest_xdist_make_scheduler`)."""
+    """With pytest-xdist, every worker orders the tests the same way (:func:`_cost_rank`; the
+    order of collection within a rank) and writes which tests share a costly fixture
+    (``groups.json`` in the session's folder), for the scheduler (:func:`pytest_xdist_make_scheduler`)."""
     if not hasattr(config, "workerinput"):
         return
+    items.sort(key=_cost_rank)              # stable: the order of collection within a rank
     groups = {}
     for item in items:
         shared = sorted(set(getattr(item, "fixturenames", ())) & set(SHARED_FIXTURES))
