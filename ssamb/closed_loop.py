@@ -311,12 +311,9 @@ def simulate_closed_loop(sys: control.StateSpace, t, r_x, r_y, inj_x=None, inj_y
     if x0 is None:
         x0 = equilibrium(sys, U[:, 0])
     A, B, C, D = (np.asarray(M, float) for M in (sys.A, sys.B, sys.C, sys.D))
-    import scipy.signal
+    from .lsim import dlsim
 
-    with np.errstate(all="ignore"):
-        _, y, x = scipy.signal.dlsim((A, B, C, D, sys.dt), U.T, t=np.arange(n) * sys.dt,
-                                     x0=np.asarray(x0, float).ravel())
-    y = np.asarray(y).reshape(n, -1)
+    x, y = dlsim(A, B, C, D, U.T, np.asarray(x0, float).ravel())
     out = {"t": t}
     out.update({k: np.broadcast_to(np.asarray(v, float), (n,)).copy() for k, v in sig.items()})
     out.update({name: y[:, i] for i, name in enumerate(sys.output_labels)})

@@ -20,15 +20,9 @@ def _spectral_radius(A) -> float:
 
 def _simulate(A, B, C, D, w, x0):
     """States (N, n) and outputs (N, l) of x+ = A x + B w, y = C x + D w from x0."""
-    n = A.shape[0]
-    N = w.shape[0]
-    if n == 0:
-        return np.zeros((N, 0)), w @ D.T
-    import scipy.signal  # imported where needed (python-control and scipy.signal are slow to import)
+    from ..lsim import dlsim
 
-    with np.errstate(all="ignore"):
-        _, yout, xout = scipy.signal.dlsim((A, B, C, D, 1.0), w, x0=np.asarray(x0, float))
-    return np.asarray(xout).reshape(N, n), np.asarray(yout).reshape(N, C.shape[0])
+    return dlsim(A, B, C, D, w, x0)
 
 
 _KERNELS: dict = {}

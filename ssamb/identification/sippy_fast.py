@@ -9,45 +9,15 @@ _JIT = {}
 
 
 def _jit_kernels():
-    """Compile (once) a numba version of SIPPY's process-form simulator (the predictor form is
-    the process form with the outputs as extra inputs, :func:`_fast_predictor_form`)."""
-    if "process" in _JIT:
-        return _JIT
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency; fall back to SIPPY
-        return None
+    """The compiled process-form simulator (:func:`ssamb.lsim.process_kernel`; the predictor
+    form is the process form with the outputs as extra inputs, :func:`_fast_predictor_form`)."""
+    if "process" not in _JIT:
+        try:
+            from ..lsim import process_kernel
 
-    @numba.njit(cache=True)
-    def process(A, B, C, D, u, x0):  # pragma: no cover - compiled
-        # explicit loops: no temporaries in the time loop
-        n = A.shape[0]
-        m = B.shape[1]
-        l_ = C.shape[0]
-        L = u.shape[1]
-        x = np.zeros((n, L))
-        y = np.zeros((l_, L))
-        for j in range(n):
-            x[j, 0] = x0[j]
-        for i in range(L):
-            if i > 0:
-                for j in range(n):
-                    acc = 0.0
-                    for k in range(n):
-                        acc += A[j, k] * x[k, i - 1]
-                    for k in range(m):
-                        acc += B[j, k] * u[k, i - 1]
-                    x[j, i] = acc
-            for r in range(l_):
-                acc = 0.0
-                for k in range(n):
-                    acc += C[r, k] * x[k, i]
-                for k in range(m):
-                    acc += D[r, k] * u[k, i]
-                y[r, i] = acc
-        return x, y
-
-    _JIT["process"] = process
+            _JIT["process"] = process_kernel()
+        except ImportError:  # pragma: no cover - numba is a dependency; fall back to SIPPY
+            return None
     return _JIT
 
 
