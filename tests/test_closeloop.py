@@ -283,13 +283,13 @@ def test_findings_text_one_line_each():
 
 @pytest.mark.slow
 def test_levitation_at_rest_closes_the_loop(tmp_path):
-    """Levitation at rest (nothing excited, 0.6 s) with an 8 N load on x: the command line
+    """Levitation at rest (nothing excited, 0.4 s) with an 8 N load on x: the command line
     analyses it (a note says nothing excites the loop) and finds the load from the coil
     currents' slow trends (light settings)."""
     config = _light_config(tmp_path)
     sc = tmp_path / "s.yaml"
     sc.write_text(yaml.safe_dump({
-        "config": str(REPO / "config.yaml"), "experiment": {"kind": "none", "seed": 3}, "duration_s": 0.6,
+        "config": str(REPO / "config.yaml"), "experiment": {"kind": "none", "seed": 3}, "duration_s": 0.4,
         "effects": [{"name": "static_load", "fx_n": 8.0, "fy_n": 0.0}],
         "noise": {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 5}}))
     data = tmp_path / "rig.npz"
