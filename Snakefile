@@ -1,8 +1,8 @@
 # ssamb: reproducible mu-analysis of a self-sensing AMB (see README.md).
 #
 #   snakemake --cores 2                       full reproduction -> results/report.html
-#   snakemake --cores 2 --scheduler greedy study      the assumption study -> results/study/report.html
-#   snakemake --cores 2 --scheduler greedy ensemble   the noise ensembles -> results/ensemble/report.html
+#   snakemake --cores 2 study                 the assumption study -> results/study/report.html
+#   snakemake --cores 2 ensemble              the noise ensembles -> results/ensemble/report.html
 #   snakemake --cores 2 results/mu/selfsensing.json      one stage (and what it needs)
 #
 # Every config value reaches its rules through `params:`, so a changed value reruns exactly the

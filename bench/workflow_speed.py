@@ -1,6 +1,6 @@
 """Workflow wall times from a clean results/ in a scratch copy of the repository: the full
 reproduction (`snakemake --cores 2`) and, with --ensemble, the noise ensembles that follow it
-(`snakemake --cores 2 --scheduler greedy ensemble`), with --study the assumption study; the per-rule benchmark table
+(`snakemake --cores 2 ensemble`), with --study the assumption study; the per-rule benchmark table
 of each target (wall and CPU seconds per job, summed per rule) and the load average at its start
 and end (the machine may be shared: the CPU seconds are the load-independent figure).
 
@@ -103,7 +103,7 @@ def main() -> None:
     for flag, target in ((args.ensemble, "ensemble"), (args.study, "study")):
         if flag:
             t = time.time()
-            _run(wd, "--scheduler", "greedy", target, configfiles=tuple(cfgs))  # as README and docs say
+            _run(wd, target, configfiles=tuple(cfgs))
             _table(_benchmarks(wd / "results", t))
     if not args.keep:
         shutil.rmtree(wd, ignore_errors=True)
