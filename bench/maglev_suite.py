@@ -9,7 +9,9 @@ centre (the values the device's physical checks imply on the step recording, rep
 parameters the real recordings identified, from ``--center``); rigs outside the config's physical
 ranges or whose linearised loop is unstable at the operating point are drawn again, and so are
 rigs whose replay touches a stop or never levitates (such a rig cannot levitate with the rig's
-controller). The rig gets one library effect with a size drawn from its range (:data:`SIZES`),
+controller), and so are rigs whose data levitate on other stretches than the recording's ball or
+whose own model, replayed on the draw's record, drops the ball (:func:`_alike`). The rig gets one
+library effect with a size drawn from its range (:data:`SIZES`),
 among the effects the device can identify on that recording, or none in the null draws. The
 rig's data are a replay of that rig driven by the recording's reference, from its states, with a
 seed of its own; the analysis (:func:`ssamb.closeloop.analyse`) sees only the data and the
@@ -156,6 +158,18 @@ def _rig_config(dev, cfg, center, rng, settings=None, spread=1.0):
     raise RuntimeError("no stable rig in 50 draws around the centre")
 
 
+def _alike(dev, rig, true, rec, drawn, seed: int) -> bool:
+    """Whether the drawn rig's data levitate where the recording's ball did (the same number of
+    levitated stretches) and its own model, replayed on the draw's record as the analysis replays
+    it (from the states at the starts of the draw's stretches), keeps the ball off the stops in
+    four realisations of the noise: a rig that strays near a stop on the recording's reference, or
+    that only the recording's own start states keep up, is no rig the analysis could be asked to
+    match."""
+    if len(drawn.usable) != len(rec.usable):
+        return False
+    return not any(dev.replay(rig, drawn, [true] if true else [], drawn.n, seed + j).contact for j in range(4))
+
+
 def _effect(name: str, rng) -> dict:
     p, lo, hi, signed = SIZES[name]
     v = float(rng.uniform(lo, hi)) * (float(rng.choice([-1.0, 1.0])) if signed else 1.0)
@@ -207,10 +221,11 @@ def run_draw(args) -> dict:
         if out.contact:
             continue
         try:
-            dev.record(data, meta, cfg, path.name)
-            break
+            drawn = dev.record(data, meta, cfg, path.name)
         except DataError:
             continue
+        if _alike(dev, rig, true, rec, drawn, int(rng.integers(1, 10_000))):
+            break
     else:
         return {"draw": k, "effect": true, "recording": path.stem, "failures": ["no rig that levitates in 20 draws"]}
     t0 = time.perf_counter()

@@ -383,6 +383,12 @@ class Device:
         then not rejected for it)."""
         return False
 
+    def physical(self, cfg: Mapping) -> str | None:
+        """Why the model ``cfg`` (nominal values with calibrated overrides) is not a physical rig
+        (a negative voltage drop, a scale below zero), or None. A fit treats such parameters as
+        infeasible, never as a cost. Default: every configuration the calibration's bounds allow."""
+        return None
+
     def validate_effect(self, effect: Mapping, where: str = "effect") -> dict:
         """Check one effect ``{name, <params>}`` (or ``{name, params: {...}}``); return it flat."""
         from .errors import InputError

@@ -63,15 +63,23 @@ class PartResidual:
     whitener : Whitener
     data : Features
         The measured features of the part.
+    stops_infeasible : bool
+        A replay whose body hit a stop (``delevitated``) is infeasible: its residual is NaN
+        (the data do not hit one, :attr:`Comparison.stops_infeasible`).
     """
 
     layout: Layout
     whitener: Whitener
     data: Features
+    stops_infeasible: bool = False
 
     @classmethod
-    def of(cls, part: Part) -> "PartResidual":
-        return cls(part.layout, part.whitener, part.data)
+    def of(cls, part: Part, stops_infeasible: bool = False) -> "PartResidual":
+        return cls(part.layout, part.whitener, part.data, stops_infeasible)
+
+    def infeasible(self) -> np.ndarray:
+        """The residual of an infeasible model (NaN in every entry: :class:`ssamb.closeloop.estimate.Problem`)."""
+        return np.full(len(self.whitener.residual(self.data, self.data)), np.nan)
 
     def model_features(self, channels: dict) -> Features:
         """Feature values of model channels (views or channels; no noise: the whitener is fixed).
@@ -85,6 +93,8 @@ class PartResidual:
         return features(self.layout, ch, noise=False, runs=runs)
 
     def __call__(self, channels: dict) -> np.ndarray:
+        if self.stops_infeasible and channels.get("delevitated"):
+            return self.infeasible()
         return self.whitener.residual(self.model_features(channels), self.data)
 
 
@@ -107,6 +117,12 @@ class Comparison:
     dl_relative : float
         The model's reproducibility at the device's own lines, relative to a line's amplitude
         (``device_line_relative`` of the settings), added to the model's noise there.
+    stops_infeasible : bool
+        Whether a fit's replay that hits a stop is infeasible (the data do not hit one: such a
+        model is not a worse fit of these data but another regime, whose cost says nothing about
+        the direction to a better one); its residual, and that of parameters outside the device's
+        physical domain (:meth:`ssamb.device.Device.physical`), is NaN in the fits
+        (:meth:`evaluator`, :meth:`evaluate_many`).
     """
 
     record: Record
@@ -118,6 +134,7 @@ class Comparison:
     hold: Part = None
     lines_hz: tuple = ()
     dl_relative: float = 0.0
+    stops_infeasible: bool = False
     _nominal: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -246,22 +263,37 @@ class Comparison:
     def evaluator(self, part: Part, build):
         """``(theta, seed) -> residual`` of a single replay whose overrides and effects ``build(theta)``
         returns (``(overrides, effects)``), for :func:`ssamb.closeloop.estimate.map_fit`."""
-        post = PartResidual.of(part)
+        post = PartResidual.of(part, self.stops_infeasible)
 
         def evaluate(theta, seed):
             ov, eff = build(theta)
+            if self._unphysical(ov):
+                return post.infeasible()
             return post(self.replay.run(eff, part.n_end, ov, seed, cache=False))
         return evaluate
+
+    def _unphysical(self, overrides) -> str | None:
+        """Why the model with ``overrides`` lies outside the device's physical domain (None: inside)."""
+        from ..config import apply_overrides
+
+        if not overrides:
+            return None
+        return self.device.physical(apply_overrides(self.replay.cfg, overrides))
 
     def evaluate_many(self, part: Part, build):
         """``[(theta, seed), ...] -> [residual, ...]``: :meth:`evaluator` over a batch, on the
         replayer's workers (a fit's design is independent replays; ``build`` runs here, the
         replays and their residuals in the workers)."""
-        post = PartResidual.of(part)
+        post = PartResidual.of(part, self.stops_infeasible)
 
         def many(tasks):
             jobs = [(eff, part.n_end, ov, seed) for (ov, eff), seed in ((build(th), s) for th, s in tasks)]
-            return self.replay.map_runs(jobs, post)
+            ok = [i for i, j in enumerate(jobs) if not self._unphysical(j[2])]
+            res = self.replay.map_runs([jobs[i] for i in ok], post) if ok else []
+            out = [post.infeasible() for _ in jobs]
+            for i, r in zip(ok, res):
+                out[i] = r
+            return out
         return many
 
     def noise_factors(self, part: Part, overrides=None, effects=()) -> np.ndarray:

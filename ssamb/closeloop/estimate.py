@@ -106,6 +106,26 @@ class EstimateSettings:
         Jacobian spreads over all N entries of the residual, its signal may sit in a few (a static
         load moves the DC entries of the currents): the signal-to-noise ratio of the column grows
         with the square of the step, and an effect linear in its size loses nothing by a wide one.
+    reject_shrink : float
+        After a rejected or infeasible step the trust region becomes this fraction of the step
+        just tried (not of the region: a step the bounds or the surrogate had already shortened
+        would otherwise be tried again nearly unchanged). A step whose replays hit a stop the data
+        do not hit, or leave the physical domain, fails in a region the linear surrogate does not
+        describe: there the cost says nothing about the direction, only that the step was too long.
+    short_alpha, short_iter : float, int
+        The truth-free check of a fit that has not converged: its cost :math:`\\|a\\|^2` above the
+        floor the noise gives, :math:`f = N(1 + \\rho/m)` (the data's unit noise per whitened entry
+        and the model noise of the anchor, the mean of :math:`m` centre runs), beyond the upper
+        ``short_alpha`` quantile of :math:`(f/N)\\,\\chi^2_N` (:func:`_far_above`). While it holds,
+        the fit goes on for up to ``short_iter`` iterations beyond ``max_iter``; a fit that ends
+        unconverged with it still holding has *stopped short* (:attr:`MapFit.stopped_short`), and
+        says so.
+    max_refresh : int
+        A fit that stalls (trust region below ``min_trust``) while its cost is far above the floor
+        halves its finite-difference steps and redoes the design at the same centre, at most this
+        many times: the surrogate's slope over the old steps did not describe the cost near the
+        centre (a response that is not linear over a step). Also the number of times the steps
+        are halved when more than a quarter of a design's replays are infeasible.
     """
 
     centre_runs: int = 4
@@ -122,6 +142,10 @@ class EstimateSettings:
     probe_growth: float = 4.0
     max_probes: int = 2
     min_trust: float = 1.0 / 16.0
+    reject_shrink: float = 0.25
+    short_alpha: float = 1e-3
+    short_iter: int = 8
+    max_refresh: int = 2
 
 
 @dataclass
@@ -140,7 +164,10 @@ class Problem:
     lower, upper : numpy.ndarray
         Bounds.
     evaluate : callable
-        ``(theta, seed) -> r``, the whitened residual (model minus data).
+        ``(theta, seed) -> r``, the whitened residual (model minus data); not finite (NaN) where
+        ``theta`` is infeasible: its replay hit a stop the data do not hit, or left the physical
+        domain. An infeasible evaluation is never part of the surrogate, and a step to where one
+        is infeasible is rejected.
     start : numpy.ndarray, optional
         Start point (default ``theta0``).
     seed0 : int
@@ -154,6 +181,10 @@ class Problem:
     probe : numpy.ndarray of bool, optional
         Parameters whose step may grow when no determined direction holds them
         (:class:`EstimateSettings` ``probe_growth``); default: those without a prior.
+    fallback : numpy.ndarray, optional
+        Where to start when the start is infeasible (most of its replays hit a stop): a point
+        known to be feasible, e.g. the calibrated model a candidate is added to (default
+        ``theta0``, when the start is elsewhere).
     """
 
     names: tuple
@@ -168,6 +199,7 @@ class Problem:
     groups: list | None = None
     evaluate_many: Callable | None = None
     probe: np.ndarray | None = None
+    fallback: np.ndarray | None = None
 
     def batch(self, tasks: list) -> list:
         """Evaluate ``[(theta, seed), ...]`` (:attr:`evaluate_many` when given)."""
@@ -206,6 +238,15 @@ class MapFit:
         Per iteration: centre, step, chi2, rho.
     centre_runs : list
         The residuals of the last centre's runs.
+    floor : float
+        The cost the noise alone gives at the last centre, :math:`N(1 + \\rho/m)`.
+    stopped_short : bool
+        The fit ended without converging (iterations out, or stalled) while its cost was still
+        far above :attr:`floor` (``short_alpha`` of :class:`EstimateSettings`): a better model may
+        lie beyond where it stopped.
+    infeasible : int
+        Replays whose body hit a stop the data do not show, or whose parameters left the physical
+        domain (:attr:`Problem.evaluate` returned a non-finite residual): never part of a fit.
     """
 
     theta: np.ndarray
@@ -221,6 +262,14 @@ class MapFit:
     converged: bool
     history: list = field(default_factory=list)
     centre_runs: list = field(default_factory=list)
+    floor: float = 0.0
+    stopped_short: bool = False
+    infeasible: int = 0
+
+    @property
+    def floor_ratio(self) -> float:
+        """:attr:`chi2` over the noise floor :attr:`floor` (1 at a model the data cannot reject)."""
+        return self.chi2 / self.floor if self.floor > 0 else float("nan")
 
     @property
     def se(self) -> np.ndarray:
@@ -430,15 +479,17 @@ def _scale(prob: Problem) -> np.ndarray:
     return np.where(np.isfinite(sd), sd, prob.step)
 
 
-def _centre(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list) -> np.ndarray:
-    """``centre_runs`` evaluations at ``theta`` with distinct seeds (added to ``runs``)."""
+def _centre(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list) -> tuple[np.ndarray, int]:
+    """``centre_runs`` evaluations at ``theta`` with distinct seeds: the feasible ones (also added
+    to ``runs``) and the number of infeasible ones."""
     base = prob.seed0 + 1000 * k
     out = prob.batch([(theta.copy(), base + 500 + j) for j in range(s.centre_runs)])
-    runs.extend((theta.copy(), r) for r in out)
-    return np.array(out)
+    ok = [r for r in out if np.all(np.isfinite(r))]
+    runs.extend((theta.copy(), r) for r in ok)
+    return (np.array(ok) if ok else np.zeros((0, len(out[0]) if out else 0))), len(out) - len(ok)
 
 
-def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list) -> None:
+def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list) -> tuple[int, int]:
     r"""The design around ``theta`` (added to ``runs``): mirror pairs :math:`\theta \pm h \odot z_j`.
 
     ``design: axes`` perturbs one parameter at a time (:math:`z_j = e_j`); ``design: signs``
@@ -448,7 +499,11 @@ def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: 
     ``n`` times larger per parameter than with the axes (the simultaneous-perturbation
     advantage) -- the noise of a weakly determined valley drops below its signal. A mirror pair
     shares one seed (common random numbers); the pair's midpoint is the centre, so curvature does
-    not bias the slope. ``pair_runs`` replicates the design with other seeds.
+    not bias the slope. ``pair_runs`` replicates the design with other seeds. An infeasible run
+    is left out (its mirror stays: near a stability margin one side of a pair may drop the body
+    in every pair, and the feasible side still informs the slope).
+
+    Returns ``(infeasible, total)``: the runs left out and the runs.
     """
     base = prob.seed0 + 1000 * k
     p = len(theta)
@@ -469,7 +524,10 @@ def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: 
             t = np.clip(theta + sign * prob.step * z, prob.lower, prob.upper)
             if np.any(t != theta):
                 tasks.append((t, base + j))
-    runs.extend(zip([t for t, _ in tasks], prob.batch(tasks)))
+    res = prob.batch(tasks)
+    ok = [np.all(np.isfinite(r)) for r in res]
+    runs.extend((t, r) for (t, _), r, good in zip(tasks, res, ok) if good)
+    return len(ok) - sum(ok), len(ok)
 
 
 def _unseen(prob: Problem, keep: np.ndarray, growth: float = 4.0) -> np.ndarray:
@@ -641,19 +699,86 @@ def _psd(A: np.ndarray) -> np.ndarray:
     return (V * np.maximum(w, 0.0)) @ V.T
 
 
+def _design(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list, log) -> tuple[int, int]:
+    """The mirror pairs at ``theta`` (:func:`_pairs`); while more than a quarter of their runs are
+    infeasible (a step :math:`h` long enough to drop the body on a stop), the steps are halved and
+    the pairs redone, at most ``max_refresh`` times. Returns ``(k, infeasible runs)``: the last
+    design's seed index and the runs left out."""
+    bad_runs = 0
+    for h in range(s.max_refresh + 1):
+        bad, total = _pairs(prob, theta, k, s, runs)
+        bad_runs += bad
+        if 4 * bad <= total or h == s.max_refresh:
+            return k, bad_runs
+        prob.step = prob.step * 0.5
+        k += 1
+        if log is not None:
+            log(f"  {bad} of {total} design runs infeasible (a stop hit, or outside the physical domain): "
+                f"steps halved")
+    return k, bad_runs
+
+
+def _far_above(chi2: float, n: int, floor: float, alpha: float) -> bool:
+    """Whether a cost ``chi2`` of ``n`` whitened entries lies beyond the upper ``alpha`` quantile of
+    the noise alone, :math:`(f/n)\\,\\chi^2_n` with the floor :math:`f` (:class:`EstimateSettings`
+    ``short_alpha``)."""
+    from scipy import stats
+
+    return n > 0 and chi2 > floor / n * float(stats.chi2.isf(alpha, n))
+
+
+def _unmoved(prob: Problem, theta: np.ndarray, lam: np.ndarray, C: np.ndarray, infeasible: int, s) -> MapFit:
+    """The result of a fit whose start is infeasible (fewer than two feasible centre runs): the
+    start, with the prior's covariance (no prior: unbounded) -- nothing was estimated."""
+    p = len(theta)
+    var = np.where(lam > 0, 1.0 / np.where(lam > 0, lam, 1.0), 1e12 * np.asarray(prob.step, float) ** 2)
+    n = C.shape[1] if C.size else 0
+    chi2 = float(np.mean(np.sum(C ** 2, axis=1))) if len(C) else float("inf")
+    return MapFit(theta=theta, cov=np.diag(var), cov_misfit=np.diag(var), B=np.zeros((n, p)), info=np.zeros((p, p)),
+                  chi2=chi2, n=n, rho=0.0, evaluations=len(C), iterations=0, converged=False,
+                  history=[{"infeasible_start": True}], centre_runs=list(C), floor=float(n),
+                  stopped_short=True, infeasible=infeasible)
+
+
 def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callable | None = None) -> MapFit:
     """Estimate ``prob`` (see module docstring)."""
     s = settings or EstimateSettings()
     lam = _prior_precision(np.asarray(prob.prior_sd, float))
     theta = np.clip(np.asarray(prob.theta0 if prob.start is None else prob.start, float).copy(), prob.lower, prob.upper)
-    runs: list = []
-    C = _centre(prob, theta, 0, s, runs)
-    _pairs(prob, theta, 0, s, runs)
-    rhos = [float(np.mean(C.var(axis=0, ddof=1)))] if len(C) > 1 else [0.0]
-    a, trust, k, history, converged, replicates, probes = C.mean(axis=0), 1.0, 0, [], False, 0, 0
     prob.step = np.asarray(prob.step, float).copy()
+    runs: list = []
+    C, infeasible = _centre(prob, theta, 0, s, runs)
+    k = 0
+    fb = prob.fallback if prob.fallback is not None else prob.theta0
+    fb = np.clip(np.asarray(fb, float), prob.lower, prob.upper)
+    if len(C) < 2 and np.any(fb != theta):
+        if log is not None:
+            log(f"the start is infeasible ({infeasible} of {s.centre_runs} replays hit a stop or leave the physical "
+                f"domain): the fallback start")
+        theta, k = fb.copy(), 1
+        C, bad = _centre(prob, theta, k, s, runs)
+        infeasible += bad
+    if len(C) < 2:
+        if log is not None:
+            log(f"the start is infeasible: {infeasible} of {s.centre_runs} replays hit a stop or leave the physical "
+                f"domain; nothing estimated")
+        return _unmoved(prob, theta, lam, C, infeasible, s)
+    k, bad = _design(prob, theta, k, s, runs, log)
+    infeasible += bad
+    rhos = [float(np.mean(C.var(axis=0, ddof=1)))]
+    a, trust, history, converged, replicates, probes, refresh = C.mean(axis=0), 1.0, [], False, 0, 0, 0
     d = np.zeros(len(theta))
-    for it in range(s.max_iter):
+
+    def floor() -> float:
+        # the cost the noise alone gives: unit data noise per whitened entry, and the anchor's
+        # model noise (the mean of len(C) runs)
+        return len(a) * (1.0 + float(np.mean(rhos)) / len(C))
+
+    for it in range(s.max_iter + s.short_iter):
+        short = _far_above(float(a @ a), len(a), floor(), s.short_alpha)
+        limit = s.max_iter + (s.short_iter if short else 0)
+        if it >= limit:
+            break
         B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, float(np.mean(rhos)))
         info, keep, pending = _information(B, noise, _scale(prob), s, prob.prior_sd)
         n_global = keep.shape[1]
@@ -663,14 +788,14 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             info = _psd((B.T @ B - noise) * np.outer(_scale(prob), _scale(prob))) / np.outer(_scale(prob), _scale(prob))
             if log is not None:
                 log(f"  {keep.shape[1] - n_global} direction(s) determined by a few entries of the residual")
-        grow = _unseen(prob, keep, s.probe_growth) if probes < s.max_probes and it < s.max_iter - 1 \
+        grow = _unseen(prob, keep, s.probe_growth) if probes < s.max_probes and it < limit - 1 \
             else np.zeros(len(theta), bool)
         if grow.any():
             # a size no determined direction holds: probe it with a wider step (EstimateSettings)
             probes += 1
             prob.step[grow] *= s.probe_growth
-            k += 1
-            _pairs(prob, theta, k, s, runs)
+            k, bad = _design(prob, theta, k + 1, s, runs, log)
+            infeasible += bad
             history.append({"iteration": it, "probe": [prob.names[i] for i in np.flatnonzero(grow)],
                             "step_grown_to": prob.step[grow].tolist()})
             if log is not None:
@@ -684,16 +809,29 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         norm = float(np.sqrt(max(d_full @ H @ d_full, 0.0) / len(d)))
         rho = float(np.mean(rhos))
         history.append({"iteration": it, "theta": theta.tolist(), "step": d.tolist(), "chi2": float(a @ a),
-                        "rho": rho, "step_norm": norm, "determined_directions": int(keep.shape[1]), "trust": trust})
+                        "rho": rho, "step_norm": norm, "determined_directions": int(keep.shape[1]), "trust": trust,
+                        "floor": floor()})
         if log is not None:
-            log(f"iteration {it}: chi2 {a @ a:.1f} (N {len(a)}), step {norm:.2f} (posterior metric, per parameter), "
-                f"{keep.shape[1]} determined directions")
+            log(f"iteration {it}: chi2 {a @ a:.1f} (N {len(a)}, noise floor {floor():.0f}), step {norm:.2f} (posterior "
+                f"metric, per parameter), {keep.shape[1]} determined directions")
         if norm >= s.tol and trust < s.min_trust:
+            if short and refresh < s.max_refresh:
+                # far above the noise, and no step the surrogate proposes improves the fit: its
+                # slopes over the finite-difference steps do not describe the cost near the centre
+                refresh += 1
+                prob.step = prob.step * 0.5
+                trust = 1.0
+                k, bad = _design(prob, theta, k + 1, s, runs, log)
+                infeasible += bad
+                history[-1]["refreshed"] = True
+                if log is not None:
+                    log(f"  stalled {a @ a / floor():.3g} times above the noise floor: steps halved, pairs again")
+                continue
             history[-1]["stalled"] = True
             if log is not None:
                 log(f"  stalled: no step within {trust:.3g} of the trust region improves the fit")
             break
-        if norm < s.tol and pending and it < s.max_iter - 1 and replicates < s.max_replicates:
+        if norm < s.tol and pending and it < limit - 1 and replicates < s.max_replicates:
             replicates += 1
             # informative directions whose Jacobian is still noise: replicate the pairs here
             k += 1
@@ -705,19 +843,42 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             converged = True
             break
         k += 1
-        Ct = _centre(prob, np.clip(theta + d, prob.lower, prob.upper), k, s, runs)
+        # the step tried, in units of the trust region (max_step steps h per coordinate)
+        taken = float(np.max(np.abs(d) / (s.max_step * prob.step)))
+        Ct, bad = _centre(prob, np.clip(theta + d, prob.lower, prob.upper), k, s, runs)
+        infeasible += bad
+        if 2 * bad > s.centre_runs or len(Ct) < 2:
+            # the step left the region where the body floats (or the physical domain): not a
+            # cost to compare, a step too long. A model near its stability margin drops the body
+            # in some realisations of the loop's noise (the data are one realisation): the step
+            # is infeasible when most replays there do, and the others make its anchor
+            trust = s.reject_shrink * min(trust, taken)
+            history[-1]["infeasible"] = bad
+            if log is not None:
+                log(f"  step infeasible ({bad} of {s.centre_runs} replays hit a stop or leave the physical domain); "
+                    f"trust region {trust:.3g}")
+            continue
         rhos.append(float(np.mean(Ct.var(axis=0, ddof=1))) if len(Ct) > 1 else 0.0)
         at = Ct.mean(axis=0)
         if at @ at <= a @ a + _margin(len(a), rho / max(s.centre_runs, 1)):
-            theta, a, C, trust = np.clip(theta + d, prob.lower, prob.upper), at, Ct, min(s.max_trust, 2 * trust)
+            # the region grows when the cost fell by at least a quarter of what the surrogate
+            # promised (a surrogate that over-promises keeps its region)
+            r_pred = a + B @ d
+            promised = float(a @ a - r_pred @ r_pred)
+            good = promised <= 0 or float(a @ a - at @ at) >= 0.25 * promised
+            theta, a, C = np.clip(theta + d, prob.lower, prob.upper), at, Ct
+            trust = min(s.max_trust, 2 * trust) if good else trust
             replicates = 0
-            _pairs(prob, theta, k, s, runs)
+            k, bad = _design(prob, theta, k, s, runs, log)
+            infeasible += bad
         else:
-            trust *= 0.5                  # rejected: the trial's runs stay in the pool and inform B along d
+            trust = s.reject_shrink * min(trust, taken)     # the trial's runs stay in the pool and inform B along d
             if log is not None:
-                log(f"  step rejected (chi2 {at @ at:.1f}); trust region halved")
+                log(f"  step rejected (chi2 {at @ at:.1f}); trust region {trust:.3g}")
     theta_hat = np.clip(theta + d, prob.lower, prob.upper) if converged else theta
-    reps = np.concatenate([C, _centre(prob, theta, k + 1, s, runs)])
+    Cf, bad = _centre(prob, theta, k + 1, s, runs)
+    infeasible += bad
+    reps = np.concatenate([C, Cf]) if len(Cf) else C
     resid = a + B @ (theta_hat - theta)
     cov, facs = _sandwich(info, noise, keep, lam, B, _scale(prob), reps, s.centre_runs, prob.groups, resid=resid)
     cov_m, facs_m = _sandwich(info, noise, keep, lam, B, _scale(prob), reps, s.centre_runs, prob.groups,
@@ -726,8 +887,12 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         # the iterations ran out while the estimate was still moving: the last step's size is
         # part of its uncertainty
         cov, cov_m = cov + np.outer(d, d), cov_m + np.outer(d, d)
-    history.append({"noise_factors": facs, "misfit_factors": facs_m})
+    fl = floor()
+    short = (not converged) and _far_above(float(a @ a), len(a), fl, s.short_alpha)
+    if short and log is not None:
+        log(f"stopped short: not converged, its cost {a @ a:.1f} is {a @ a / fl:.3g} times the noise floor {fl:.0f}")
+    history.append({"noise_factors": facs, "misfit_factors": facs_m, "infeasible": infeasible})
     return MapFit(theta=theta_hat, cov=cov, cov_misfit=cov_m, B=B, info=info, chi2=float(a @ a), n=len(a),
                   rho=float(np.mean(rhos)),
-                  evaluations=len(runs), iterations=len(history) - 1, converged=converged, history=history,
-                  centre_runs=list(reps))
+                  evaluations=len(runs) + infeasible, iterations=len(history) - 1, converged=converged,
+                  history=history, centre_runs=list(reps), floor=fl, stopped_short=short, infeasible=infeasible)

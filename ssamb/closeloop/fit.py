@@ -170,7 +170,9 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
 
 def _problem(cmp: Comparison, base: Base, model: EffectModel, seed0: int, step_rel: float) -> tuple:
     """The estimation problem of a candidate: the base's free parameters (priors: their
-    tolerances) and the effect's (no prior); and its ``build(theta) -> (overrides, effects)``."""
+    tolerances) and the effect's (no prior); and its ``build(theta) -> (overrides, effects)``. It
+    starts with the unidentified parameters at their prior mean (:class:`Base`); where that model
+    is infeasible (the published parameters of a rig that drops its ball) from the base itself."""
     from .calibration import calibration_problem, overrides_of
 
     k = len(base.free)
@@ -188,7 +190,8 @@ def _problem(cmp: Comparison, base: Base, model: EffectModel, seed0: int, step_r
                    step=cat(cp.step if k else [], model.step), lower=cat(cp.lower if k else [], model.lower),
                    upper=cat(cp.upper if k else [], model.upper), evaluate=cmp.evaluator(cmp.fit, build),
                    evaluate_many=cmp.evaluate_many(cmp.fit, build), start=cat(base.theta_free, model.theta0),
-                   seed0=seed0,
+                   seed0=seed0, fallback=cat(np.array([sp.theta_of(float(base.overrides[sp.key])) for sp in base.free]),
+                                             model.theta0),
                    groups=cmp.groups(cmp.fit), probe=np.concatenate([np.zeros(k, bool), size_mask(model)]))
     return prob, build
 
@@ -207,7 +210,7 @@ def _coarse_start(prob, model, k: int) -> np.ndarray:
     start = np.asarray(prob.start, float)
     points = [start] + [np.concatenate([start[:k], g]) for g in model.grid]
     res = prob.batch([(np.clip(t, prob.lower, prob.upper), prob.seed0 + 999) for t in points])
-    chi2 = np.array([float(r @ r) for r in res])
+    chi2 = np.array([float(r @ r) if np.all(np.isfinite(r)) else np.inf for r in res])
     best = int(np.argmin(chi2))
     if best and chi2[best] < chi2[0] - 2.0 * np.sqrt(12.0 * len(res[0])):
         return np.clip(points[best], prob.lower, prob.upper)

@@ -477,6 +477,7 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
                    evaluate=cmp.evaluator(cmp.fit, build), evaluate_many=cmp.evaluate_many(cmp.fit, build),
                    start=np.concatenate([theta_cal[free]] + [m.theta0 for m in models]),
                    seed0=900_000, groups=cmp.groups(cmp.fit),
+                   fallback=np.concatenate([cal.theta[free]] + [m.theta0 for m in models]),
                    probe=np.concatenate([np.zeros(len(free), bool)] + [size_mask(m) for m in models]))
     import dataclasses
 
@@ -547,6 +548,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     est = EstimateSettings(**settings.estimate)
     rec = cmp.record
     measured_contact = cmp.device.measured_contact(rec, cmp.replay.cfg, settings)
+    # where the measured body floats, a fit's replay that hits a stop is an infeasible step
+    cmp.stops_infeasible = not measured_contact
     out.nominal = cmp.prediction()
     t0 = time.perf_counter()
     init = cmp.device.initial_estimate(rec, cmp.replay.cfg) if specs else {}

@@ -391,6 +391,18 @@ class Maglev1D(Device):
                                                   "extra_force_n": kn["extra_force_n"]})
         return out
 
+    def physical(self, cfg: Mapping) -> str | None:
+        """The config's physical ranges (:func:`ssamb.maglev1d.config.validate`): the message of the
+        first value outside them, or None."""
+        from ..config import ConfigError
+        from .config import validate
+
+        try:
+            validate(cfg)
+        except ConfigError as exc:
+            return str(exc)
+        return None
+
     def measured_contact(self, record: Record, cfg: Mapping, settings) -> bool:
         """Whether the measured ball comes within a count of a stop in the usable part."""
         y = record.channels["y"]
