@@ -30,11 +30,16 @@ standard errors off). This module therefore never compares single evaluations:
    the data determine: the Jacobian's signal above its noise (``min_snr``) and the information
    above ``min_information`` (along the others the estimate stays where the prior holds it,
    instead of following the surrogate's noise); shortened to the bounds and a trust region of
-   ``max_step`` steps :math:`h`, which doubles after an accepted step (up to ``max_trust``) and
-   halves after a rejected one.
+   ``max_step`` steps :math:`h`, which doubles after an accepted step that lowered the cost by
+   at least a quarter of what the surrogate promised (up to ``max_trust``) and becomes
+   ``reject_shrink`` of the step tried after a rejected or infeasible one.
 5. **Accept** the step only if the anchor at the new centre is not worse than the old one by
-   more than two standard deviations of the difference of two noisy anchors
+   more than two standard deviations of the difference of two noisy anchors at that cost
    (:func:`_margin`); a rejected trial's runs stay in the pool and inform :math:`B` along the step.
+   A step where most replays are **infeasible** -- the body hits a stop the data do not hit, or
+   the parameters leave the device's physical domain (the residual is NaN) -- is rejected without
+   a cost; infeasible runs never enter the surrogate, and a design with many of them is redone
+   with half the steps (a step that drops the ball is no finite difference of the cost).
 6. **Replicate** the pairs at the same centre when the step is at the noise level but some
    direction looks informative while its Jacobian is still noise (a weakly determined valley
    between two parameters needs them). A direction a few entries determine (a DC offset)
@@ -42,7 +47,11 @@ standard errors off). This module therefore never compares single evaluations:
 7. **Stop** when the step is at the noise level, :math:`\sqrt{d^T H d / p} <` ``tol`` with
    :math:`H = \hat{\mathcal I} + \Lambda` the posterior precision (the natural metric: a step
    along a weakly determined valley is measured against the valley's own uncertainty), or after
-   ``max_iter`` iterations. The estimate is :math:`\hat\theta = \theta_k + d`; its covariance the
+   ``max_iter`` iterations -- unless the cost is still far above the noise floor (the truth-free
+   check, ``short_alpha``): then up to ``short_iter`` more, a stall halves the steps, and a rest
+   along the determined directions widens the steps of the others (``max_refresh``); a fit that
+   ends unconverged so far above the floor has *stopped short* and says so. The estimate is
+   :math:`\hat\theta = \theta_k + d`; its covariance the
    sandwich of :func:`_sandwich`: the data on the directions the estimate moved along, with the
    noise the final centre's replicates show (the rig is one more replay), the prior elsewhere,
    and what the prior's spread there does to the rest. When the iterations ran out first the
@@ -117,15 +126,19 @@ class EstimateSettings:
         floor the noise gives, :math:`f = N(1 + \\rho/m)` (the data's unit noise per whitened entry
         and the model noise of the anchor, the mean of :math:`m` centre runs), beyond the upper
         ``short_alpha`` quantile of :math:`(f/N)\\,\\chi^2_N` (:func:`_far_above`). While it holds,
-        the fit goes on for up to ``short_iter`` iterations beyond ``max_iter``; a fit that ends
-        unconverged with it still holding has *stopped short* (:attr:`MapFit.stopped_short`), and
-        says so.
+        the fit goes on for up to ``short_iter`` iterations beyond ``max_iter`` (and may refresh or
+        widen its steps, ``max_refresh``; ``short_iter`` 0: neither, as for a candidate's fit, a
+        screen on a base that misfits by design); a fit that ends unconverged with it still
+        holding has *stopped short* (:attr:`MapFit.stopped_short`), and says so.
     max_refresh : int
         A fit that stalls (trust region below ``min_trust``) while its cost is far above the floor
         halves its finite-difference steps and redoes the design at the same centre, at most this
         many times: the surrogate's slope over the old steps did not describe the cost near the
         centre (a response that is not linear over a step). Also the number of times the steps
-        are halved when more than a quarter of a design's replays are infeasible.
+        are halved when more than a quarter of a design's replays are infeasible, and the number
+        of times a fit at rest along its determined directions while its cost is far above the
+        floor widens the steps of the parameters no determined direction holds (``probe_growth``)
+        and redoes the design: the data may determine them at a wider step.
     """
 
     centre_runs: int = 4
@@ -530,12 +543,14 @@ def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: 
     return len(ok) - sum(ok), len(ok)
 
 
-def _unseen(prob: Problem, keep: np.ndarray, growth: float = 4.0) -> np.ndarray:
-    """The parameters that may be probed (:attr:`Problem.probe`) of which the determined directions
-    ``keep`` (scaled coordinates) hold less than half, and whose grown step still fits a quarter
-    of their range."""
+def _unseen(prob: Problem, keep: np.ndarray, growth: float = 4.0, every: bool = False) -> np.ndarray:
+    """The parameters that may be probed (:attr:`Problem.probe`; ``every``: all) of which the
+    determined directions ``keep`` (scaled coordinates) hold less than half, and whose grown step
+    still fits a quarter of their range."""
     p = len(prob.step)
     probe = np.isinf(np.asarray(prob.prior_sd, float)) if prob.probe is None else np.asarray(prob.probe, bool)
+    if every:
+        probe = np.ones(p, bool)
     Q, _ = _basis(keep, p)
     held = np.sum(Q ** 2, axis=1)
     span = np.asarray(prob.upper, float) - np.asarray(prob.lower, float)
@@ -543,11 +558,15 @@ def _unseen(prob: Problem, keep: np.ndarray, growth: float = 4.0) -> np.ndarray:
     return probe & (held < 0.5) & room
 
 
-def _margin(n: int, q: float) -> float:
+def _margin(n: int, q: float, cost: float | None = None) -> float:
     r"""Two standard deviations of :math:`\|a_1\|^2 - \|a_0\|^2` for two anchors with the same
-    expectation (noise variance :math:`q` per entry each, :math:`\|E a\|^2 \approx n`):
-    :math:`\mathrm{var} = 8nq + 4nq^2`."""
-    return 2.0 * float(np.sqrt(8 * n * q + 4 * n * q * q))
+    expectation (noise variance :math:`q` per entry each, :math:`n` entries). With
+    :math:`a = \mu + e`, :math:`\mathrm{var} = 8q\|\mu\|^2 + 4nq^2`; ``cost`` is
+    :math:`\|\mu\|^2` (at least :math:`n`: the data's own noise is in :math:`\mu`), the anchor's
+    cost. Far above the noise floor the first term grows with the misfit: a margin computed at
+    the floor there rejects steps for the anchors' noise alone."""
+    c = max(float(cost), float(n)) if cost is not None else float(n)
+    return 2.0 * float(np.sqrt(8 * c * q + 4 * n * q * q))
 
 
 def _basis(keep: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
@@ -766,7 +785,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     k, bad = _design(prob, theta, k, s, runs, log)
     infeasible += bad
     rhos = [float(np.mean(C.var(axis=0, ddof=1)))]
-    a, trust, history, converged, replicates, probes, refresh = C.mean(axis=0), 1.0, [], False, 0, 0, 0
+    a, trust, history, converged, replicates, probes, refresh, widened = C.mean(axis=0), 1.0, [], False, 0, 0, 0, 0
     d = np.zeros(len(theta))
 
     def floor() -> float:
@@ -775,7 +794,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         return len(a) * (1.0 + float(np.mean(rhos)) / len(C))
 
     for it in range(s.max_iter + s.short_iter):
-        short = _far_above(float(a @ a), len(a), floor(), s.short_alpha)
+        short = s.short_iter > 0 and _far_above(float(a @ a), len(a), floor(), s.short_alpha)
         limit = s.max_iter + (s.short_iter if short else 0)
         if it >= limit:
             break
@@ -840,6 +859,21 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
                 log(f"  {pending} direction(s) informative but not yet above the Jacobian's noise: more pairs")
             continue
         if norm < s.tol:
+            grow = _unseen(prob, keep, s.probe_growth, every=True) if short and widened < s.max_refresh \
+                else np.zeros(len(theta), bool)
+            if grow.any():
+                # at rest along the determined directions, yet far above the noise: the others may be
+                # informative at a wider step (the Jacobian's signal grows with the step's square,
+                # its noise does not), and there the better model lies
+                widened += 1
+                prob.step[grow] *= s.probe_growth
+                k, bad = _design(prob, theta, k + 1, s, runs, log)
+                infeasible += bad
+                history[-1]["widened"] = [prob.names[i] for i in np.flatnonzero(grow)]
+                if log is not None:
+                    log(f"  at rest {a @ a / floor():.3g} times above the noise floor: the steps of "
+                        f"{', '.join(prob.names[i] for i in np.flatnonzero(grow))} x{s.probe_growth:g}, pairs again")
+                continue
             converged = True
             break
         k += 1
@@ -860,7 +894,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             continue
         rhos.append(float(np.mean(Ct.var(axis=0, ddof=1))) if len(Ct) > 1 else 0.0)
         at = Ct.mean(axis=0)
-        if at @ at <= a @ a + _margin(len(a), rho / max(s.centre_runs, 1)):
+        if at @ at <= a @ a + _margin(len(a), rho / max(s.centre_runs, 1), float(a @ a)):
             # the region grows when the cost fell by at least a quarter of what the surrogate
             # promised (a surrogate that over-promises keeps its region)
             r_pred = a + B @ d

@@ -81,7 +81,10 @@ def _calibration(search, sigma, meas_v, hold, nominal_v, dev) -> dict:
              "condition": ident["condition"], "singular_values": ident["singular_values"],
              "combinations": ident["combinations"], "conflicts": cal.conflicts, "error_reduction": red,
              "simulations": cal.fit.evaluations if cal.fit else 0,
-             "converged": bool(cal.fit.converged) if cal.fit else True}
+             "converged": bool(cal.fit.converged) if cal.fit else True,
+             "stopped_short": bool(cal.fit.stopped_short) if cal.fit else False,
+             "cost_over_noise_floor": float(cal.fit.floor_ratio) if cal.fit and cal.fit.floor > 0 else None,
+             "infeasible_replays": int(cal.fit.infeasible) if cal.fit else 0}
     return block, params, not_ident
 
 
@@ -116,6 +119,10 @@ def _notes(rec, effects, cal_block, not_ident) -> list:
         if e["fit"]["without_signature"]:
             notes.append(f"{e['name']}: no signature was significant before fitting (round {e['fit']['round']}); "
                          "it was found by fitting each library effect and rests on the held-out error alone")
+    if cal_block.get("stopped_short"):
+        notes.append(f"the calibration stopped short: it ended without converging while its cost was still "
+                     f"{cal_block['cost_over_noise_floor']:.3g} times the noise floor (a better calibration may "
+                     f"exist; what follows rests on this one)")
     for p in cal_block.get("parameters", []):
         if p["identified"] and abs(p["z_from_nominal"]) > 3:
             notes.append(f"{p['key']}: {p['value']:.6g} lies {abs(p['z_from_nominal']):.1f} tolerances from its "

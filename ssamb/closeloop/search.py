@@ -317,7 +317,8 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
             m = dataclasses.replace(m, theta0=th0)
         models.append(m)
 
-    cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations))
+    # a candidate's fit is a screen on a base that misfits by design: no iterations beyond its own
+    cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations), short_iter=0)
     cand = fit_candidate(cmp, base, models, cand_est, seed0, step_rel=settings.calibration_step_rel,
                          log=(lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
     _judge(cand, cmp, base, ev, ft, settings, measured_contact)
