@@ -370,3 +370,64 @@ def test_a_parameter_seen_in_one_entry_of_many_is_determined():
     fit = map_fit(prob, EstimateSettings())
     assert abs(fit.theta[0] - truth[0]) < 3 * fit.se[0] and fit.se[0] < 0.1, (fit.theta, fit.se)
     assert abs(fit.theta[1] - truth[1]) < 3 * fit.se[1], (fit.theta, fit.se)
+
+
+def test_infeasible_replays_are_steps_too_long_not_costs():
+    """A linear problem whose replays 'drop the body' (NaN residual) beyond a wall at a = 0.6 on
+    the way to a truth at a = 1.0 from a = 0: the fit never centres beyond the wall, counts the
+    infeasible replays, and ends at the feasible side (a costs-as-penalty fit would have jumped
+    or stalled far from it)."""
+    N = 80
+    rng = np.random.default_rng(7)
+    col = 20.0 * rng.standard_normal(N) / math.sqrt(N)
+
+    def evaluate(theta, seed):
+        if theta[0] > 0.6:
+            return np.full(N, np.nan)
+        return col * (theta[0] - 1.0) + 0.1 * np.random.default_rng(seed).standard_normal(N)
+
+    prob = Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.05]), np.array([-2.0]), np.array([2.0]),
+                   evaluate)
+    fit = map_fit(prob, EstimateSettings(max_iter=12))
+    assert fit.infeasible > 0
+    assert 0.4 < fit.theta[0] <= 0.6
+    assert all(h["theta"][0] <= 0.6 for h in fit.history if "theta" in h)
+
+
+def test_an_infeasible_start_falls_back_and_a_fit_cut_short_says_so():
+    """From an infeasible start the fit starts at its fallback; cut to one iteration with its cost
+    far above the noise floor it has stopped short, and says so; given the iterations it
+    converges to the truth and has not."""
+    N = 60
+    col = np.linspace(-30.0, 30.0, N)
+
+    def evaluate(theta, seed):
+        if theta[0] < -1.0:
+            return np.full(N, np.nan)
+        return col * (theta[0] - 3.0) + 0.2 * np.random.default_rng(seed).standard_normal(N)
+
+    def prob():
+        return Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.1]), np.array([-5.0]), np.array([5.0]),
+                       evaluate, start=np.array([-3.0]), fallback=np.array([0.0]))
+    short = map_fit(prob(), EstimateSettings(max_iter=1, short_iter=0))
+    assert short.infeasible >= 4 and 0.0 <= short.theta[0] < 1.0
+    assert short.stopped_short and short.floor_ratio > 2
+    full = map_fit(prob(), EstimateSettings(max_iter=12))
+    assert full.converged and not full.stopped_short
+    assert full.theta[0] == pytest.approx(3.0, abs=0.02)
+
+
+def test_calibration_agreement_is_a_chi_square_of_the_differences():
+    """Two recordings 1.0 +- 0.1 and 1.4 +- 0.1: weighted mean 1.2, chi-square 8 on 1 degree of
+    freedom; a session parameter is left out; one identified in a single recording is listed so."""
+    from ssamb.closeloop.recordings import calibration_agreement
+
+    def rep(v, ident):
+        return {"calibration": {"stopped_short": False, "parameters": [
+            {"key": "k", "value": v, "se": 0.1, "identified": ident},
+            {"key": "zero", "value": v, "se": 0.1, "identified": True}]}}
+    out = calibration_agreement({"a": rep(1.0, True), "b": rep(1.4, False)}, session=("zero",))
+    assert set(out) == {"k"}
+    assert out["k"]["value"] == pytest.approx(1.2) and out["k"]["chi2"] == pytest.approx(8.0)
+    assert out["k"]["dof"] == 1 and out["k"]["p"] == pytest.approx(0.004678, rel=1e-3)
+    assert out["k"]["identified_in"] == ["a"]

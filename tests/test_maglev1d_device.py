@@ -241,3 +241,14 @@ def test_start_estimate_puts_the_face_where_the_rig_reads_it():
     assert not one.contact and not two.contact
     start = cfg_of(DEV.initial_estimate(rec, CFG))
     assert abs(P.reading_m(P.knobs_of(start), 0.0)) < 0.05 / 1023
+
+
+def test_parameters_outside_the_physical_ranges_are_named():
+    """A negative stage drop is no rig (a fit treats it as infeasible): the reason names the key;
+    the nominal model is physical."""
+    from ssamb.config import apply_overrides
+
+    dev = get_device("maglev1d")
+    cfg = dev.default_config()
+    assert dev.physical(cfg) is None
+    assert "amplifier.drop_v" in dev.physical(apply_overrides(cfg, {"amplifier.drop_v": -0.5}))

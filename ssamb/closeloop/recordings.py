@@ -29,7 +29,9 @@ own (:func:`ssamb.closeloop.analyse`: calibration, effects, joint refit, with it
 The result has the top-level keys of a single recording's ``closeloop.json`` (``effects``,
 ``unexplained``, ``error_before``/``error_after`` per channel, on the held-out recordings,
 ``parameters``, ``not_identifiable``) and adds ``recordings`` (each fitting recording's findings),
-``agreement``, ``holdout`` (per held-out recording and channel) and ``effects_rejected``.
+``agreement``, ``calibration_agreement`` (every calibrated parameter across the fitting recordings,
+identified or not: :func:`calibration_agreement`), ``holdout`` (per held-out recording and channel)
+and ``effects_rejected``.
 """
 from __future__ import annotations
 
@@ -39,7 +41,8 @@ from typing import Mapping
 import numpy as np
 from scipy import stats
 
-__all__ = ["combine_estimates", "combine_parameters", "combine_effects", "analyse_recordings", "run_recordings"]
+__all__ = ["combine_estimates", "combine_parameters", "combine_effects", "calibration_agreement",
+           "analyse_recordings", "run_recordings"]
 
 
 def combine_estimates(values, ses, max_z: float = 3.0) -> dict:
@@ -99,6 +102,42 @@ def combine_parameters(reports: Mapping[str, dict], max_z: float = 3.0,
             if key not in params and key not in session:
                 not_ident.setdefault(key, {})[n] = why
     return params, agree, {k: "; ".join(f"{n}: {w}" for n, w in v.items()) for k, v in not_ident.items()}
+
+
+def calibration_agreement(reports: Mapping[str, dict], session: tuple = ()) -> dict:
+    r"""Whether every calibrated parameter, identified or not, agrees across the recordings.
+
+    Per parameter, from each recording's ``calibration`` block (its estimate :math:`p_k` and
+    standard error :math:`s_k`, whatever the data identified): the inverse-variance weighted mean
+    :math:`\bar p` and :math:`\chi^2 = \sum_k (p_k - \bar p)^2 / s_k^2` on :math:`K - 1` degrees
+    of freedom with its p-value (small: the recordings disagree beyond their errors), and per
+    recording whether the data identified it and whether its calibration stopped short. A
+    parameter no recording identified agrees trivially (its errors are the prior's): the count of
+    recordings that identified it says how much the agreement means. The ``session`` parameters
+    (re-zeroed per recording) are left out.
+
+    Returns ``{key: {value, chi2, dof, p, identified_in, per_recording}}`` for the parameters
+    calibrated in two or more recordings.
+    """
+    per: dict = {}
+    for n, r in reports.items():
+        cal = r.get("calibration") or {}
+        for q in cal.get("parameters", []):
+            if q["key"] in session or not (q["se"] > 0 and math.isfinite(q["se"])):
+                continue
+            per.setdefault(q["key"], {})[n] = {"value": q["value"], "se": q["se"], "identified": q["identified"],
+                                              "stopped_short": bool(cal.get("stopped_short", False))}
+    out = {}
+    for key, d in per.items():
+        if len(d) < 2:
+            continue
+        v = np.array([x["value"] for x in d.values()])
+        w = 1.0 / np.array([x["se"] for x in d.values()]) ** 2
+        m = float(np.sum(w * v) / np.sum(w))
+        chi2 = float(np.sum(w * (v - m) ** 2))
+        out[key] = {"value": m, "chi2": chi2, "dof": len(d) - 1, "p": float(stats.chi2.sf(chi2, len(d) - 1)),
+                    "identified_in": [n for n, x in d.items() if x["identified"]], "per_recording": d}
+    return out
 
 
 def _effect_key(spec: Mapping) -> tuple:
@@ -392,6 +431,7 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
     unexplained = any(err_a[c]["rms"] > 2 * noise[c] for c in dev.channels if err_b[c]["above_noise"])
     rep = {"effects": kept, "unexplained": bool(unexplained), "error_before": err_b, "error_after": err_a,
             "parameters": params, "not_identifiable": not_ident, "agreement": agree,
+            "calibration_agreement": calibration_agreement(reps, session),
             "effects_rejected": rejected, "holdout": holdout, "stops_hit_by_model_only": contact,
             "physical_checks": checks, "effects_not_identifiable": _not_identifiable_effects(dev, hold, cfg, settings),
             "recordings": {n: _brief(r) for n, r in reps.items()},
@@ -425,7 +465,8 @@ def _pool(items: list) -> float:
 def _brief(rep: dict) -> dict:
     """What the combined report keeps of one recording's analysis."""
     return {k: rep.get(k) for k in ("summary", "parameters", "not_identifiable", "effects", "unexplained",
-                                    "error_before", "error_after", "validation", "notes", "final_model")}
+                                    "error_before", "error_after", "validation", "notes", "final_model",
+                                    "calibration")}
 
 
 def run_recordings(fit_paths, hold_paths, out_dir, config=None, device="amb", progress: bool = True, workers: int = 1,
