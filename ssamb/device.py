@@ -143,6 +143,11 @@ class EffectModel:
     size_params : tuple of str or None
         The parameters that measure the effect's size (each 0 without the effect), for the
         test of its size against zero; None: all of them.
+    mirrors : callable or None
+        ``theta -> list of theta``: the points across a kink of the cost from a fitted ``theta``
+        where the cost takes similar values (a delay just below a whole controller sample and
+        the one as far above it), which a local fit cannot reach; each is scored after the fit and
+        refitted from when it scores better (:func:`ssamb.closeloop.fit.fit_candidate`).
     """
 
     name: str
@@ -155,6 +160,7 @@ class EffectModel:
     fixed: dict
     grid: tuple = ()
     size_params: tuple | None = None
+    mirrors: Callable | None = None
 
 
 class EffectModule(Protocol):

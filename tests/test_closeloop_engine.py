@@ -431,3 +431,14 @@ def test_calibration_agreement_is_a_chi_square_of_the_differences():
     assert out["k"]["value"] == pytest.approx(1.2) and out["k"]["chi2"] == pytest.approx(8.0)
     assert out["k"]["dof"] == 1 and out["k"]["p"] == pytest.approx(0.004678, rel=1e-3)
     assert out["k"]["identified_in"] == ["a"]
+
+
+def test_a_delay_near_a_whole_sample_is_mirrored_across_it():
+    """A fitted delay of 0.97 samples is mirrored to 1.03 (the cost's kink at one sample hides
+    the other side from a local fit); one in mid-sample or below the first sample is not."""
+    from ssamb.sim.effects.sensor_delay import _mirrors
+
+    ts = 36e-6
+    out = _mirrors(np.array([0.97 * ts, 0.5 * ts]), ts)
+    assert len(out) == 1 and out[0][0] == pytest.approx(1.03 * ts) and out[0][1] == pytest.approx(0.5 * ts)
+    assert _mirrors(np.array([0.1 * ts]), ts) == []

@@ -217,6 +217,29 @@ def _coarse_start(prob, model, k: int) -> np.ndarray:
     return start
 
 
+def _mirrored(cmp, base, model, fit, settings, seed0: int, step_rel: float, log):
+    r"""The fit, or the refit from a mirror of it across a kink of the cost
+    (:attr:`ssamb.device.EffectModel.mirrors`) when that mirror scores better: every mirror and the
+    fit are replayed once with one shared seed, and a mirror that beats the fit by more than
+    :func:`_coarse_start`'s margin is refitted from; the refit is kept when its cost is lower."""
+    prob, _ = _problem(cmp, base, model, seed0 + 77, step_rel)
+    k = len(base.free)
+    alts = [np.concatenate([fit.theta[:k], np.clip(t, model.lower, model.upper)]) for t in model.mirrors(fit.theta[k:])]
+    if not alts:
+        return fit
+    res = prob.batch([(t, prob.seed0 + 998) for t in [fit.theta] + alts])
+    chi2 = np.array([float(r @ r) if np.all(np.isfinite(r)) else np.inf for r in res])
+    best = int(np.argmin(chi2))
+    if not best or not chi2[best] < chi2[0] - 2.0 * np.sqrt(12.0 * len(res[0])):
+        return fit
+    if log is not None:
+        log(f"mirror {dict(zip(model.params, alts[best - 1][k:].tolist()))} scores {chi2[best]:.1f} against the "
+            f"fit's {chi2[0]:.1f}: refitted from there")
+    prob.start = alts[best - 1]
+    other = map_fit(prob, settings, log)
+    return other if other.chi2 < fit.chi2 else fit
+
+
 def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateSettings, seed0: int,
                   log=None, step_rel: float = 0.05) -> Candidate:
     """Fit ``models`` (jointly) added to ``base`` on the fitting part, with the base's free
@@ -233,6 +256,8 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
         if len(models) == 1 and model.grid:
             prob.start = _coarse_start(prob, model, k)
         fit = map_fit(prob, settings, log)
+        if len(models) == 1 and model.mirrors is not None:
+            fit = _mirrored(cmp, base, model, fit, settings, seed0, step_rel, log)
         if not np.all(np.isfinite(fit.theta)):
             raise FloatingPointError("the estimate is not finite")
         ov, eff = build(fit.theta)

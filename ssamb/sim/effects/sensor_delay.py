@@ -14,6 +14,8 @@ slope.
 """
 from __future__ import annotations
 
+import functools
+
 import math
 
 import numpy as np
@@ -107,7 +109,23 @@ def model(hints: dict, record, st) -> EffectModel | str:
     return EffectModel(NAME, tuple(f"delay_{a}_s" for a in axes), th, np.full(len(axes), 1e-6),
                        np.zeros(len(axes)), np.full(len(axes), 2.4e-3),
                        lambda t: [{"name": NAME, "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
-                       {"axes": axes}, _grid(th, hinted, 1.0 / float(record.fs_hz)))
+                       {"axes": axes}, _grid(th, hinted, 1.0 / float(record.fs_hz)),
+                       mirrors=functools.partial(_mirrors, ts=1.0 / float(record.fs_hz)))
+
+
+def _mirrors(theta: np.ndarray, ts: float, near: float = 0.25) -> list:
+    r"""The fitted delays reflected across the nearest whole controller sample :math:`kT_s`
+    (:math:`k \ge 1`), one axis at a time, where a delay lies within ``near`` of a sample of it:
+    the cost has a kink there and similar values at :math:`kT_s \pm \delta` (:func:`_grid`), so a
+    fit that ended at :math:`kT_s - \delta` may have its truth at :math:`kT_s + \delta`."""
+    out = []
+    for i, d in enumerate(np.asarray(theta, float)):
+        k = round(d / ts)
+        if k >= 1 and abs(d - k * ts) <= near * ts:
+            t = np.array(theta, float)
+            t[i] = 2 * k * ts - d
+            out.append(t)
+    return out
 
 
 def _grid(th: np.ndarray, hinted: tuple, ts: float, top: float = 120e-6) -> tuple:
