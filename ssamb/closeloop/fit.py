@@ -219,9 +219,10 @@ def _coarse_start(prob, model, k: int) -> np.ndarray:
 
 def _mirrored(cmp, base, model, fit, settings, seed0: int, step_rel: float, log):
     r"""The fit, or the refit from a mirror of it across a kink of the cost
-    (:attr:`ssamb.device.EffectModel.mirrors`) when that mirror scores better: every mirror and the
-    fit are replayed once with one shared seed, and a mirror that beats the fit by more than
-    :func:`_coarse_start`'s margin is refitted from; the refit is kept when its cost is lower."""
+    (:attr:`ssamb.device.EffectModel.mirrors`) when that one ends lower: every mirror and the fit
+    are replayed once with one shared seed, the best mirror is refitted from unless it scores
+    clearly worse (by more than :func:`_coarse_start`'s margin: the two sides of a kink score
+    alike, and one replay cannot tell them apart), and the refit is kept when its cost is lower."""
     prob, _ = _problem(cmp, base, model, seed0 + 77, step_rel)
     k = len(base.free)
     alts = [np.concatenate([fit.theta[:k], np.clip(t, model.lower, model.upper)]) for t in model.mirrors(fit.theta[k:])]
@@ -229,8 +230,8 @@ def _mirrored(cmp, base, model, fit, settings, seed0: int, step_rel: float, log)
         return fit
     res = prob.batch([(t, prob.seed0 + 998) for t in [fit.theta] + alts])
     chi2 = np.array([float(r @ r) if np.all(np.isfinite(r)) else np.inf for r in res])
-    best = int(np.argmin(chi2))
-    if not best or not chi2[best] < chi2[0] - 2.0 * np.sqrt(12.0 * len(res[0])):
+    best = 1 + int(np.argmin(chi2[1:]))
+    if not chi2[best] < chi2[0] + 2.0 * np.sqrt(12.0 * len(res[0])):
         return fit
     if log is not None:
         log(f"mirror {dict(zip(model.params, alts[best - 1][k:].tolist()))} scores {chi2[best]:.1f} against the "
