@@ -755,7 +755,7 @@ def _unmoved(prob: Problem, theta: np.ndarray, lam: np.ndarray, C: np.ndarray, i
     chi2 = float(np.mean(np.sum(C ** 2, axis=1))) if len(C) else float("inf")
     return MapFit(theta=theta, cov=np.diag(var), cov_misfit=np.diag(var), B=np.zeros((n, p)), info=np.zeros((p, p)),
                   chi2=chi2, n=n, rho=0.0, evaluations=len(C), iterations=0, converged=False,
-                  history=[{"infeasible_start": True}], centre_runs=list(C), floor=float(n),
+                  history=[{"infeasible_start": True}], centre_runs=list(C), floor=float(max(n, 1)),
                   stopped_short=True, infeasible=infeasible)
 
 
@@ -779,8 +779,8 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         infeasible += bad
     if len(C) < 2:
         if log is not None:
-            log(f"the start is infeasible: {infeasible} of {s.centre_runs} replays hit a stop or leave the physical "
-                f"domain; nothing estimated")
+            log(f"the start is infeasible ({infeasible} replays at the start and its fallback hit a stop or leave the "
+                f"physical domain): nothing estimated")
         return _unmoved(prob, theta, lam, C, infeasible, s)
     k, bad = _design(prob, theta, k, s, runs, log)
     infeasible += bad

@@ -120,9 +120,10 @@ def _notes(rec, effects, cal_block, not_ident) -> list:
             notes.append(f"{e['name']}: no signature was significant before fitting (round {e['fit']['round']}); "
                          "it was found by fitting each library effect and rests on the held-out error alone")
     if cal_block.get("stopped_short"):
-        notes.append(f"the calibration stopped short: it ended without converging while its cost was still "
-                     f"{cal_block['cost_over_noise_floor']:.3g} times the noise floor (a better calibration may "
-                     f"exist; what follows rests on this one)")
+        r = cal_block.get("cost_over_noise_floor")
+        far = f"{r:.3g} times the noise floor" if r is not None else "far above the noise floor (its start infeasible)"
+        notes.append(f"the calibration stopped short: it ended without converging while its cost was still {far} "
+                     f"(a better calibration may exist; what follows rests on this one)")
     for p in cal_block.get("parameters", []):
         if p["identified"] and abs(p["z_from_nominal"]) > 3:
             notes.append(f"{p['key']}: {p['value']:.6g} lies {abs(p['z_from_nominal']):.1f} tolerances from its "
