@@ -135,7 +135,7 @@ class EstimateSettings:
         halves its finite-difference steps and redoes the design at the same centre, at most this
         many times: the surrogate's slope over the old steps did not describe the cost near the
         centre (a response that is not linear over a step). Also the number of times the steps
-        are halved when more than a quarter of a design's replays are infeasible, and the number
+        are halved when more than half of a design's replays are infeasible, and the number
         of times a fit at rest along its determined directions while its cost is far above the
         floor widens the steps of the parameters no determined direction holds (``probe_growth``)
         and redoes the design: the data may determine them at a wider step.
@@ -718,16 +718,20 @@ def _psd(A: np.ndarray) -> np.ndarray:
     return (V * np.maximum(w, 0.0)) @ V.T
 
 
-def _design(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list, log) -> tuple[int, int]:
-    """The mirror pairs at ``theta`` (:func:`_pairs`); while more than a quarter of their runs are
-    infeasible (a step :math:`h` long enough to drop the body on a stop), the steps are halved and
-    the pairs redone, at most ``max_refresh`` times. Returns ``(k, infeasible runs)``: the last
-    design's seed index and the runs left out."""
+def _design(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list, log,
+            base: np.ndarray) -> tuple[int, int]:
+    """The mirror pairs at ``theta`` (:func:`_pairs`) with the steps ``base``; while more than half
+    of their runs are infeasible (a step :math:`h` long enough to drop the body on a stop), the
+    steps are halved and the pairs redone, at most ``max_refresh`` times. The halving holds for
+    this centre only (the next design starts from ``base`` again: a region near a stability
+    margin is no reason to measure the slopes in the noise everywhere after). Returns
+    ``(k, infeasible runs)``: the last design's seed index and the runs left out."""
     bad_runs = 0
+    prob.step = np.array(base, float)
     for h in range(s.max_refresh + 1):
         bad, total = _pairs(prob, theta, k, s, runs)
         bad_runs += bad
-        if 4 * bad <= total or h == s.max_refresh:
+        if 2 * bad <= total or h == s.max_refresh:
             return k, bad_runs
         prob.step = prob.step * 0.5
         k += 1
@@ -765,6 +769,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     lam = _prior_precision(np.asarray(prob.prior_sd, float))
     theta = np.clip(np.asarray(prob.theta0 if prob.start is None else prob.start, float).copy(), prob.lower, prob.upper)
     prob.step = np.asarray(prob.step, float).copy()
+    base_step = prob.step.copy()        # the design's steps (probes, refreshes and widening change them)
     runs: list = []
     C, infeasible = _centre(prob, theta, 0, s, runs)
     k = 0
@@ -782,7 +787,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             log(f"the start is infeasible ({infeasible} replays at the start and its fallback hit a stop or leave the "
                 f"physical domain): nothing estimated")
         return _unmoved(prob, theta, lam, C, infeasible, s)
-    k, bad = _design(prob, theta, k, s, runs, log)
+    k, bad = _design(prob, theta, k, s, runs, log, base_step)
     infeasible += bad
     rhos = [float(np.mean(C.var(axis=0, ddof=1)))]
     a, trust, history, converged, replicates, probes, refresh, widened = C.mean(axis=0), 1.0, [], False, 0, 0, 0, 0
@@ -812,8 +817,8 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         if grow.any():
             # a size no determined direction holds: probe it with a wider step (EstimateSettings)
             probes += 1
-            prob.step[grow] *= s.probe_growth
-            k, bad = _design(prob, theta, k + 1, s, runs, log)
+            base_step[grow] *= s.probe_growth
+            k, bad = _design(prob, theta, k + 1, s, runs, log, base_step)
             infeasible += bad
             history.append({"iteration": it, "probe": [prob.names[i] for i in np.flatnonzero(grow)],
                             "step_grown_to": prob.step[grow].tolist()})
@@ -838,9 +843,9 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
                 # far above the noise, and no step the surrogate proposes improves the fit: its
                 # slopes over the finite-difference steps do not describe the cost near the centre
                 refresh += 1
-                prob.step = prob.step * 0.5
+                base_step = base_step * 0.5
                 trust = 1.0
-                k, bad = _design(prob, theta, k + 1, s, runs, log)
+                k, bad = _design(prob, theta, k + 1, s, runs, log, base_step)
                 infeasible += bad
                 history[-1]["refreshed"] = True
                 if log is not None:
@@ -866,8 +871,8 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
                 # informative at a wider step (the Jacobian's signal grows with the step's square,
                 # its noise does not), and there the better model lies
                 widened += 1
-                prob.step[grow] *= s.probe_growth
-                k, bad = _design(prob, theta, k + 1, s, runs, log)
+                base_step[grow] *= s.probe_growth
+                k, bad = _design(prob, theta, k + 1, s, runs, log, base_step)
                 infeasible += bad
                 history[-1]["widened"] = [prob.names[i] for i in np.flatnonzero(grow)]
                 if log is not None:
@@ -903,7 +908,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             theta, a, C = np.clip(theta + d, prob.lower, prob.upper), at, Ct
             trust = min(s.max_trust, 2 * trust) if good else trust
             replicates = 0
-            k, bad = _design(prob, theta, k, s, runs, log)
+            k, bad = _design(prob, theta, k, s, runs, log, base_step)
             infeasible += bad
         else:
             trust = s.reject_shrink * min(trust, taken)     # the trial's runs stay in the pool and inform B along d
