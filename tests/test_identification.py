@@ -518,3 +518,26 @@ def test_state_regressors_are_the_derivative_of_the_output_by_the_input_matrix(n
         y[t] = C @ x
         x = F @ x + G @ w[t]
     np.testing.assert_allclose(np.einsum("tljk,jk->tl", R, G), y, rtol=1e-10, atol=1e-10)
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(1, 6), ratio=st.integers(4, 30), rank_drop=st.integers(0, 2), wide=st.booleans(),
+       seed=st.integers(0, 2**32 - 1))
+def test_pinv_qr_is_the_moore_penrose_inverse(n, ratio, rank_drop, wide, seed):
+    """The four Penrose conditions, and numpy's SVD pseudo-inverse to round-off, on long
+    matrices of full and of deficient rank (a clear gap below the kept singular values)."""
+    from ssamb.identification.sippy_fast import pinv_qr
+
+    rng = np.random.default_rng(seed)
+    r = max(n - rank_drop, 1)
+    a = rng.normal(size=(n * ratio, r)) @ rng.normal(size=(r, n))
+    a = a.T if wide else a
+    p = pinv_qr(a)
+    assert p.shape == a.T.shape
+    tol = dict(rtol=1e-9, atol=1e-9 * np.abs(a).max())
+    np.testing.assert_allclose(a @ p @ a, a, **tol)
+    np.testing.assert_allclose(p @ a @ p, p, rtol=1e-9, atol=1e-9 * np.abs(p).max())
+    np.testing.assert_allclose(a @ p, (a @ p).T, atol=1e-9)
+    np.testing.assert_allclose(p @ a, (p @ a).T, atol=1e-9)
+    if r == n:  # the rank-deficient cases' cutoff sits in round-off: compare the full-rank ones
+        np.testing.assert_allclose(p, np.linalg.pinv(a), rtol=1e-8, atol=1e-10 * np.abs(p).max())

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import types
 from collections import OrderedDict
 from typing import Any, Callable, Iterator
 
@@ -145,7 +144,7 @@ def _sippy_patches(memo: _Memo) -> list[tuple[Any, str, Any]]:
     """(module, attribute, replacement) for SIPPY's projection, pseudo-inverse and weighted SVD."""
     from sippy_unipi import OLSims_methods, Parsim_methods, functionsetSIM
 
-    pinv = np.linalg.pinv
+    from .sippy_fast import numpy_with_pinv, pinv_qr as pinv
 
     def pinv_memo(a, *args, **kwargs):
         return memo.get(("pinv", array_key(a), array_key(args), array_key(tuple(sorted(kwargs.items())))),
@@ -174,10 +173,7 @@ def _sippy_patches(memo: _Memo) -> list[tuple[Any, str, Any]]:
 
     # Parsim_methods calls np.linalg.pinv through its module global `np`: give it a numpy whose
     # linalg.pinv is pinv_data (everything else is numpy's own)
-    linalg = types.SimpleNamespace(**{k: getattr(np.linalg, k) for k in dir(np.linalg) if not k.startswith("__")})
-    linalg.pinv = pinv_data
-    np_view = types.SimpleNamespace(**{k: getattr(np, k) for k in dir(np) if not k.startswith("__")})
-    np_view.linalg = linalg
+    np_view = numpy_with_pinv(pinv_data)
     return [(functionsetSIM, "Z_dot_PIort", z_dot_piort), (OLSims_methods, "Z_dot_PIort", z_dot_piort),
             (Parsim_methods, "Z_dot_PIort", z_dot_piort), (OLSims_methods, "pinv", pinv_memo),
             (OLSims_methods, "SVD_weighted", svd_weighted_memo), (Parsim_methods, "np", np_view)]

@@ -1,4 +1,5 @@
-r"""SIPPY speed-up: exact compiled replacements of its two Python simulation loops."""
+r"""SIPPY speed-up: compiled replacements of its two Python simulation loops (the same recursion),
+and its pseudo-inverses of long data matrices through a QR factorisation (:func:`pinv_qr`)."""
 from __future__ import annotations
 
 import contextlib
@@ -19,6 +20,42 @@ def _jit_kernels():
         except ImportError:  # pragma: no cover - numba is a dependency; fall back to SIPPY
             return None
     return _JIT
+
+
+def pinv_qr(a, rcond=1e-15):
+    r"""Moore-Penrose pseudo-inverse of a long (tall or wide) matrix through its QR factors.
+
+    For :math:`a` of shape (M, N), :math:`M \ge N`: :math:`a = Q R` with :math:`Q` (M, N)
+    orthonormal columns and :math:`R` (N, N), so :math:`a^+ = R^+ Q^T` (a wide matrix is the
+    transpose of a tall one, :math:`a^+ = ((a^T)^+)^T`). :math:`R` has the singular values of
+    :math:`a`, so the same relative cutoff ``rcond`` (:func:`numpy.linalg.pinv`'s default
+    1e-15) drops the same ones. SIPPY's data matrices are long (horizons times channels rows,
+    tens of thousands of samples as columns): the Householder QR and one product cost about a
+    third of the SVD of the long matrix that :func:`numpy.linalg.pinv` computes, with its
+    (N, M) singular vectors. Equal to :func:`numpy.linalg.pinv` to round-off; other shapes
+    (at most 4:1) go to :func:`numpy.linalg.pinv` itself.
+    """
+    a = np.asarray(a)
+    if a.ndim != 2 or a.dtype.kind != "f" or min(a.shape) == 0 or max(a.shape) < 4 * min(a.shape):
+        return np.linalg.pinv(a, rcond)
+    if a.shape[0] < a.shape[1]:
+        return pinv_qr(a.T, rcond).T
+    import scipy.linalg
+
+    q, r = scipy.linalg.qr(a, mode="economic")
+    return np.linalg.pinv(r, rcond) @ q.T
+
+
+def numpy_with_pinv(pinv):
+    """A stand-in for the ``numpy`` module whose ``linalg.pinv`` is ``pinv`` (everything else is
+    numpy's own): SIPPY's modules call ``np.linalg.pinv`` through their global ``np``."""
+    import types
+
+    linalg = types.SimpleNamespace(**{k: getattr(np.linalg, k) for k in dir(np.linalg) if not k.startswith("__")})
+    linalg.pinv = pinv
+    view = types.SimpleNamespace(**{k: getattr(np, k) for k in dir(np) if not k.startswith("__")})
+    view.linalg = linalg
+    return view
 
 
 def _f64(a):
@@ -52,27 +89,34 @@ def _fast_predictor_form(A_K, B_K, C, D, K, y, u, x0="None"):
 
 @contextlib.contextmanager
 def fast_sippy():
-    """Temporarily replace SIPPY's pure-Python state-space simulators by compiled equivalents.
+    """Temporarily replace SIPPY's pure-Python state-space simulators by compiled equivalents,
+    and its pseudo-inverses by :func:`pinv_qr`.
 
     SIPPY's PARSIM methods simulate the predictor once per unknown parameter
     (:math:`n m + n l + n` runs of :math:`N` Python iterations: a minute for the 4x4 amplifier
     at N = 40 000). The replacements compute the same recursion (tested against SIPPY's own
-    functions) with numba. The patch is scoped to the ``with`` block (not thread safe).
+    functions) with numba. A pseudo-inverse an enclosing
+    :func:`~ssamb.identification.memo.identification_memo` already replaced is left to it (the
+    memo computes with :func:`pinv_qr` too, so both paths give the same bits). The patch is
+    scoped to the ``with`` block (not thread safe).
     """
     if _jit_kernels() is None:  # pragma: no cover
         yield
         return
-    from sippy_unipi import OLSims_methods, Parsim_methods
+    from sippy_unipi import OLSims_methods, Parsim_methods, functionsetSIM
 
-    saved = [(OLSims_methods, "SS_lsim_process_form", OLSims_methods.SS_lsim_process_form),
-             (Parsim_methods, "SS_lsim_process_form", Parsim_methods.SS_lsim_process_form),
-             (Parsim_methods, "SS_lsim_predictor_form", Parsim_methods.SS_lsim_predictor_form)]
+    patches = [(OLSims_methods, "SS_lsim_process_form", _fast_process_form),
+               (Parsim_methods, "SS_lsim_process_form", _fast_process_form),
+               (Parsim_methods, "SS_lsim_predictor_form", _fast_predictor_form)]
+    if OLSims_methods.pinv is np.linalg.pinv:
+        patches.append((OLSims_methods, "pinv", pinv_qr))
+    view = numpy_with_pinv(pinv_qr)
+    patches += [(mod, "np", view) for mod in (OLSims_methods, Parsim_methods, functionsetSIM) if mod.np is np]
+    saved = [(mod, name, getattr(mod, name)) for mod, name, _ in patches]
     try:
-        OLSims_methods.SS_lsim_process_form = _fast_process_form
-        Parsim_methods.SS_lsim_process_form = _fast_process_form
-        Parsim_methods.SS_lsim_predictor_form = _fast_predictor_form
+        for mod, name, fn in patches:
+            setattr(mod, name, fn)
         yield
     finally:
         for mod, name, fn in saved:
             setattr(mod, name, fn)
-
