@@ -241,7 +241,8 @@ def run_draw(args) -> dict:
             "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {})}
                       for e in rep["effects"]],
             "parameters": {key: [p["value"], p["se"], ov.get(key)] for key, p in rep["parameters"].items()},
-            "simulations": rep["timing"]["simulations"], "seconds": time.perf_counter() - t0}
+            "simulations": rep["timing"]["simulations"], "seconds": time.perf_counter() - t0,
+            "calibration_stopped_short": bool(rep.get("calibration", {}).get("stopped_short", False))}
 
 
 def main() -> None:
@@ -313,6 +314,9 @@ def main() -> None:
           f"({sum(not d['failures'] for d in inv)} of them found anyway)")
     print(f"  missed while visible: {len(vis) - ok_vis}, of which the search stopped short (the truth also fits the "
           f"fitting part better) in {len(short)}")
+    cal_short = [d for d in res if d.get("calibration_stopped_short")]
+    print(f"  the calibration stopped short by its own (truth-free) check: {len(cal_short)} of "
+          f"{sum('truth' in d for d in res)} draws with data ({sum(d in cal_short for d in eff)} with an effect)")
     for n in drawn:
         sel = [d for d in eff if d["effect"]["name"] == n]
         if sel:
