@@ -47,6 +47,7 @@ __all__ = [
     "StabilityReport",
     "as_statespace",
     "fig3_loop",
+    "interconnect_linear",
     "assemble_closed_loop",
     "loop_transfer",
     "stability",
@@ -150,6 +151,81 @@ def _junctions(dt: float, open_at: str | None) -> list:
     return sums
 
 
+def _block_diag(mats, rows, cols) -> np.ndarray:
+    """Block-diagonal matrix of ``mats`` whose blocks have the given row and column counts
+    (blocks may be empty)."""
+    out = np.zeros((sum(rows), sum(cols)))
+    r = c = 0
+    for M, nr, nc in zip(mats, rows, cols):
+        out[r:r + nr, c:c + nc] = np.asarray(M, float).reshape(nr, nc)
+        r, c = r + nr, c + nc
+    return out
+
+
+def interconnect_linear(blocks: Sequence[control.StateSpace], inputs: Sequence[str], outputs: Sequence[str]
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    r"""Closed-loop matrices of named discrete state-space blocks connected by signal name.
+
+    Every block output is a signal; a block input takes the signal of its name, else the
+    external input of that name (``inputs``), else zero. With the blocks stacked
+    (:math:`x^+ = A x + B u`, :math:`y = C x + D u`, block-diagonal) and the connections
+    :math:`u = M y + N w`:
+
+    .. math::
+
+        y = L (C x + D N w), \quad L = (I - D M)^{-1}, \qquad
+        A_{cl} = A + B M L C, \quad B_{cl} = B (M L D N + N), \quad
+        C_{cl} = S L C, \quad D_{cl} = S L D N,
+
+    with :math:`S` selecting ``outputs`` from :math:`y`. The states are the blocks' in block
+    order, as :func:`control.interconnect` orders them; the matrices agree with it to
+    round-off (it evaluates the same static map signal by signal, in Python: 25 ms a loop).
+
+    Raises
+    ------
+    ValueError
+        A signal named by two blocks or an unknown output.
+    RuntimeError
+        An algebraic loop: a cycle of feedthrough links (:math:`D M` not nilpotent), which
+        :func:`control.interconnect` refuses as well.
+    """
+    index, ny = {}, 0
+    for b in blocks:
+        for k, lab in enumerate(b.output_labels):
+            if lab in index:
+                raise ValueError(f"signal '{lab}' is the output of two blocks")
+            index[lab] = ny + k
+        ny += b.noutputs
+    unknown = [o for o in outputs if o not in index]
+    if unknown:
+        raise ValueError(f"outputs {unknown} are no block's output")
+    ns, ms, ps = ([b.nstates for b in blocks], [b.ninputs for b in blocks], [b.noutputs for b in blocks])
+    A, B = _block_diag([b.A for b in blocks], ns, ns), _block_diag([b.B for b in blocks], ns, ms)
+    C, D = _block_diag([b.C for b in blocks], ps, ns), _block_diag([b.D for b in blocks], ps, ms)
+    labels = [lab for b in blocks for lab in b.input_labels]
+    M, N = np.zeros((len(labels), ny)), np.zeros((len(labels), len(inputs)))
+    where = {w: j for j, w in enumerate(inputs)}
+    for k, lab in enumerate(labels):
+        if lab in index:
+            M[k, index[lab]] = 1.0
+        elif lab in where:
+            N[k, where[lab]] = 1.0
+    DM = D @ M
+    reach = DM != 0  # signal j feeds signal i without delay
+    for _ in range(ny):  # a path of ny direct links revisits a signal: a cycle
+        if not reach.any():
+            break
+        reach = (reach.astype(float) @ (DM != 0)) > 0
+    else:
+        if ny:
+            raise RuntimeError("algebraic loop: the blocks' feedthrough (D) closes a loop")
+    L = np.linalg.inv(np.eye(ny) - DM)
+    S = np.zeros((len(outputs), ny))
+    S[np.arange(len(outputs)), [index[o] for o in outputs]] = 1.0
+    LC, LDN = L @ C, L @ D @ N
+    return A + B @ M @ LC, B @ (M @ LDN + N), S @ LC, S @ LDN
+
+
 def fig3_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, inputs: Sequence[str] | None = None,
               outputs: Sequence[str] = CL_OUTPUTS, disturbed: Sequence[str] = (), open_at: str | None = None,
               name: str = "amb_lti") -> control.StateSpace:
@@ -205,17 +281,13 @@ def fig3_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, inputs: Sequence[s
     if bad:
         raise ValueError(f"inputs {bad} not available (available: {available})")
     try:
-        cl = control.interconnect(blocks, inplist=inputs, inputs=inputs, outlist=list(outputs),
-                                  outputs=list(outputs), name=name,
-                                  ignore_inputs=[c for c in available if c not in inputs])
+        A, B, C, D = interconnect_linear(blocks, inputs, list(outputs))
     except RuntimeError as exc:
-        if "algebraic loop" in str(exc):
-            raise ValueError(
-                "algebraic loop in the closed-loop assembly: the feedthrough (D) matrices of the "
-                "PID, amplifier and self-sensing models close a loop without delay; identify the "
-                "amplifier or the self-sensing model strictly proper (D_required=False)") from None
-        raise
-    return control.ss(cl.A, cl.B, cl.C, cl.D, dt, inputs=inputs, outputs=list(outputs), name=name)
+        raise ValueError(
+            "algebraic loop in the closed-loop assembly: the feedthrough (D) matrices of the "
+            "PID, amplifier and self-sensing models close a loop without delay; identify the "
+            "amplifier or the self-sensing model strictly proper (D_required=False)") from exc
+    return control.ss(A, B, C, D, dt, inputs=inputs, outputs=list(outputs), name=name)
 
 
 def assemble_closed_loop(plant, amplifier, selfsensing, pid_x, pid_y, *, require_stable: bool = False,

@@ -388,3 +388,42 @@ def test_identify_and_assemble_a_known_linear_loop():
     # the operating point (bias, gravity compensation) is reproduced without a start-up transient
     assert out["i_ypos"][0] == pytest.approx(val["i_ypos"][0], rel=1e-4)
     assert out["u_y"][0] == pytest.approx(val["u_y"][0], rel=1e-3)
+
+
+# --------------------------------------------------------------------------------------
+# the linear interconnection against python-control's
+# --------------------------------------------------------------------------------------
+def _random_subsystems(seed):
+    """Random plant (order 3), amplifier with position inputs (order 2), self-sensing (order 1,
+    affine) and PIDs with feedthrough: every block of Fig. 3 with states and cross terms."""
+    rng = np.random.default_rng(seed)
+
+    def ss(n, ins, outs, name, proper=False):
+        A = 0.9 * rng.normal(size=(n, n)) / np.sqrt(n)
+        D = np.zeros((len(outs), len(ins))) if not proper else rng.normal(size=(len(outs), len(ins)))
+        return control.ss(A, rng.normal(size=(n, len(ins))), rng.normal(size=(len(outs), n)), D, DT,
+                          inputs=ins, outputs=outs, name=name)
+
+    plant = ss(3, CUR, ["x_meas", "y_meas"], "plant")
+    amp = ss(2, ["u_x_cmd", "u_y_cmd", "x_meas", "y_meas"], CUR, "amplifier")
+    sens = ss(1, ["y_meas", "one"], ["y_ss"], "selfsensing")
+    return plant, amp, sens, ss(1, ["e"], ["u"], "pid_x", proper=True), ss(2, ["e"], ["u"], "pid_y", proper=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("variant", ["nominal", "open_x", "disturbed"])
+def test_interconnect_linear_is_pythoncontrols(seed, variant):
+    from ssamb.closed_loop import _junctions, _subsystems, interconnect_linear
+
+    blocks = _subsystems(*_random_subsystems(seed)) + _junctions(DT, "x" if variant == "open_x" else None)
+    ins = ["r_y", "inj_x", "inj_y", "one"] + (["e_x_in"] if variant == "open_x" else ["r_x"])
+    outs = ["x_meas", "y_meas", "y_ss", "u_x", "i_ypos"]
+    if variant == "disturbed":  # an additive input on the self-sensing output, as the generalized plant has
+        sens = blocks[2]
+        blocks[2] = control.ss(sens.A, sens.B, sens.C, sens.D, DT, inputs=sens.input_labels, outputs=["y_ss_nom"],
+                               name="selfsensing")
+        blocks.append(control.summing_junction(inputs=["y_ss_nom", "d_y_ss"], output="y_ss", dt=DT, name="add"))
+        ins.append("d_y_ss")
+    ref = control.interconnect(blocks, inplist=ins, inputs=ins, outlist=outs, outputs=outs, check_unused=False)
+    for got, want in zip(interconnect_linear(blocks, ins, outs), (ref.A, ref.B, ref.C, ref.D)):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
