@@ -174,8 +174,8 @@ SMOKE_FIXTURES = ("smoke_workdir",)
 #: fixtures of module scope shared by several tests and costly to make: with pytest-xdist the
 #: tests that use one run on the same worker, which makes it once (the smoke workflow is shared
 #: between the workers by its folder: the tests only read it)
-SHARED_FIXTURES = ("written", "rig_pair", "heavier_rig", "chain", "data", "model", "plant_and_physics", "pid",
-                   "known")
+SHARED_FIXTURES = ("written", "rig_pair", "heavier_rig", "chain", "workflow", "data", "model", "plant_and_physics",
+                   "pid", "known")
 _CONFIG = None
 #: the smoke runs this process started (it reaps them)
 _STARTED: list[subprocess.Popen] = []
@@ -191,13 +191,12 @@ def _run(name: str) -> _Background:
 
 
 def _cost_rank(item) -> tuple[int, int]:
-    """Where a test goes in the queue of the two workers: the costly ones first, so that the
-    session does not end on one long test while the other worker idles (marked ``slow`` or
-    ``workflow``: 0, the rest: 1), and the tests that read the smoke workflow last (it runs in
-    the background meanwhile; among them the slow ones first)."""
-    costly = item.get_closest_marker("slow") is not None or item.get_closest_marker("workflow") is not None
+    """Where a test goes in the queue of the two workers: the ones marked ``slow`` first, so that
+    the session does not end on one long test while the other worker idles, and the tests that
+    read the smoke workflow last (it runs in the background meanwhile; among them the slow ones
+    first)."""
     smoke = bool(set(getattr(item, "fixturenames", ())) & set(SMOKE_FIXTURES))
-    return (int(smoke), int(item.get_closest_marker("slow") is None) if smoke else int(not costly))
+    return int(smoke), int(item.get_closest_marker("slow") is None)
 
 
 def pytest_collection_modifyitems(config, items):
