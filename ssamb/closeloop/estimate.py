@@ -718,6 +718,15 @@ def _psd(A: np.ndarray) -> np.ndarray:
     return (V * np.maximum(w, 0.0)) @ V.T
 
 
+def _widened_design(prob, theta, k, s, runs, log, base_step, grow):
+    """The steps of the parameters ``grow`` widened by ``s.probe_growth`` (in place) and the
+    design redone at ``theta``: returns the design's index, its infeasible runs and the
+    widened parameters' names."""
+    base_step[grow] *= s.probe_growth
+    k, bad = _design(prob, theta, k + 1, s, runs, log, base_step)
+    return k, bad, [prob.names[i] for i in np.flatnonzero(grow)]
+
+
 def _design(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: list, log,
             base: np.ndarray) -> tuple[int, int]:
     """The mirror pairs at ``theta`` (:func:`_pairs`) with the steps ``base``; while more than half
@@ -817,14 +826,12 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         if grow.any():
             # a size no determined direction holds: probe it with a wider step (EstimateSettings)
             probes += 1
-            base_step[grow] *= s.probe_growth
-            k, bad = _design(prob, theta, k + 1, s, runs, log, base_step)
+            k, bad, names = _widened_design(prob, theta, k, s, runs, log, base_step, grow)
             infeasible += bad
-            history.append({"iteration": it, "probe": [prob.names[i] for i in np.flatnonzero(grow)],
-                            "step_grown_to": prob.step[grow].tolist()})
+            history.append({"iteration": it, "probe": names, "step_grown_to": prob.step[grow].tolist()})
             if log is not None:
-                log(f"iteration {it}: {', '.join(prob.names[i] for i in np.flatnonzero(grow))} in no determined "
-                    f"direction: steps x{s.probe_growth:g}, pairs again")
+                log(f"iteration {it}: {', '.join(names)} in no determined direction: steps x{s.probe_growth:g}, "
+                    "pairs again")
             continue
         d, d_full = _solve_step(a, B, info, keep, lam, theta, prob, s, trust, want_full=True)
         H = info + np.diag(lam)
@@ -871,13 +878,12 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
                 # informative at a wider step (the Jacobian's signal grows with the step's square,
                 # its noise does not), and there the better model lies
                 widened += 1
-                base_step[grow] *= s.probe_growth
-                k, bad = _design(prob, theta, k + 1, s, runs, log, base_step)
+                k, bad, names = _widened_design(prob, theta, k, s, runs, log, base_step, grow)
                 infeasible += bad
-                history[-1]["widened"] = [prob.names[i] for i in np.flatnonzero(grow)]
+                history[-1]["widened"] = names
                 if log is not None:
                     log(f"  at rest {a @ a / floor():.3g} times above the noise floor: the steps of "
-                        f"{', '.join(prob.names[i] for i in np.flatnonzero(grow))} x{s.probe_growth:g}, pairs again")
+                        f"{', '.join(names)} x{s.probe_growth:g}, pairs again")
                 continue
             converged = True
             break
