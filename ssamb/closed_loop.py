@@ -151,17 +151,6 @@ def _junctions(dt: float, open_at: str | None) -> list:
     return sums
 
 
-def _block_diag(mats, rows, cols) -> np.ndarray:
-    """Block-diagonal matrix of ``mats`` whose blocks have the given row and column counts
-    (blocks may be empty)."""
-    out = np.zeros((sum(rows), sum(cols)))
-    r = c = 0
-    for M, nr, nc in zip(mats, rows, cols):
-        out[r:r + nr, c:c + nc] = np.asarray(M, float).reshape(nr, nc)
-        r, c = r + nr, c + nc
-    return out
-
-
 def interconnect_linear(blocks: Sequence[control.StateSpace], inputs: Sequence[str], outputs: Sequence[str]
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     r"""Closed-loop matrices of named discrete state-space blocks connected by signal name.
@@ -200,8 +189,9 @@ def interconnect_linear(blocks: Sequence[control.StateSpace], inputs: Sequence[s
     if unknown:
         raise ValueError(f"outputs {unknown} are no block's output")
     ns, ms, ps = ([b.nstates for b in blocks], [b.ninputs for b in blocks], [b.noutputs for b in blocks])
-    A, B = _block_diag([b.A for b in blocks], ns, ns), _block_diag([b.B for b in blocks], ns, ms)
-    C, D = _block_diag([b.C for b in blocks], ps, ns), _block_diag([b.D for b in blocks], ps, ms)
+    # scipy's block_diag keeps a block with no states as (0, 0), (0, m) and (p, 0)
+    A, B, C, D = (scipy.linalg.block_diag(*[np.reshape(getattr(b, k), (r, c)) for b, r, c in zip(blocks, rows, cols)])
+                  for k, rows, cols in (("A", ns, ns), ("B", ns, ms), ("C", ps, ns), ("D", ps, ms)))
     labels = [lab for b in blocks for lab in b.input_labels]
     M, N = np.zeros((len(labels), ny)), np.zeros((len(labels), len(inputs)))
     where = {w: j for j, w in enumerate(inputs)}
@@ -211,14 +201,10 @@ def interconnect_linear(blocks: Sequence[control.StateSpace], inputs: Sequence[s
         elif lab in where:
             N[k, where[lab]] = 1.0
     DM = D @ M
-    reach = DM != 0  # signal j feeds signal i without delay
-    for _ in range(ny):  # a path of ny direct links revisits a signal: a cycle
-        if not reach.any():
-            break
-        reach = (reach.astype(float) @ (DM != 0)) > 0
-    else:
-        if ny:
-            raise RuntimeError("algebraic loop: the blocks' feedthrough (D) closes a loop")
+    # entry (i, j) of the ny-th power of the link graph counts the paths of ny direct links from
+    # signal j to signal i: one exists only through a cycle
+    if ny and np.linalg.matrix_power((DM != 0).astype(float), ny).any():
+        raise RuntimeError("algebraic loop: the blocks' feedthrough (D) closes a loop")
     L = np.linalg.inv(np.eye(ny) - DM)
     S = np.zeros((len(outputs), ny))
     S[np.arange(len(outputs)), [index[o] for o in outputs]] = 1.0

@@ -442,3 +442,15 @@ def test_a_delay_near_a_whole_sample_is_mirrored_across_it():
     out = _mirrors(np.array([0.97 * ts, 0.5 * ts]), ts)
     assert len(out) == 1 and out[0][0] == pytest.approx(1.03 * ts) and out[0][1] == pytest.approx(0.5 * ts)
     assert _mirrors(np.array([0.1 * ts]), ts) == []
+
+
+def test_one_replay_margin_is_two_sd_of_a_cost_difference_at_the_floor():
+    """Two replays of one model against one data set (shared data noise, own model noise, unit
+    variance each): the spread of the difference of their costs is sqrt(12 n)."""
+    from ssamb.closeloop.fit import _one_replay_margin
+
+    rng = np.random.default_rng(3)
+    n, trials = 400, 4000
+    d = rng.normal(size=(trials, n))
+    diff = np.sum((d + rng.normal(size=(trials, n))) ** 2 - (d + rng.normal(size=(trials, n))) ** 2, axis=1)
+    assert _one_replay_margin(n) == pytest.approx(2.0 * diff.std(), rel=0.05)

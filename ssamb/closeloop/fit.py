@@ -202,6 +202,20 @@ def size_mask(model: EffectModel) -> np.ndarray:
     return np.array([model.size_params is None or p in model.size_params for p in model.params], bool)
 
 
+def _one_replay_costs(res) -> np.ndarray:
+    """The costs of single replays' residuals (infinite where a replay was infeasible)."""
+    return np.array([float(r @ r) if np.all(np.isfinite(r)) else np.inf for r in res])
+
+
+def _one_replay_margin(n: int) -> float:
+    r"""Two standard deviations of the difference of two single replays' costs at the noise
+    floor: with entries :math:`d + m_1` and :math:`d + m_2` (the data's noise :math:`d` shared,
+    the replays' :math:`m_k` their own, each of unit variance), each of the ``n`` entries of
+    :math:`\sum (m_1^2 - m_2^2) + 2 d (m_1 - m_2)` has variance 4 + 8, so :math:`2\sqrt{12 n}`.
+    A start or mirror must beat the other by more to be told apart from it by one replay each."""
+    return 2.0 * float(np.sqrt(12.0 * n))
+
+
 def _coarse_start(prob, model, k: int) -> np.ndarray:
     r"""The start of a fit: the best of the model's coarse grid (:attr:`EffectModel.grid`, one
     replay each, with one seed shared by all) when it beats the plain start by more than two
@@ -210,9 +224,9 @@ def _coarse_start(prob, model, k: int) -> np.ndarray:
     start = np.asarray(prob.start, float)
     points = [start] + [np.concatenate([start[:k], g]) for g in model.grid]
     res = prob.batch([(np.clip(t, prob.lower, prob.upper), prob.seed0 + 999) for t in points])
-    chi2 = np.array([float(r @ r) if np.all(np.isfinite(r)) else np.inf for r in res])
+    chi2 = _one_replay_costs(res)
     best = int(np.argmin(chi2))
-    if best and chi2[best] < chi2[0] - 2.0 * np.sqrt(12.0 * len(res[0])):
+    if best and chi2[best] < chi2[0] - _one_replay_margin(len(res[0])):
         return np.clip(points[best], prob.lower, prob.upper)
     return start
 
@@ -229,9 +243,9 @@ def _mirrored(cmp, base, model, fit, settings, seed0: int, step_rel: float, log)
     if not alts:
         return fit
     res = prob.batch([(t, prob.seed0 + 998) for t in [fit.theta] + alts])
-    chi2 = np.array([float(r @ r) if np.all(np.isfinite(r)) else np.inf for r in res])
+    chi2 = _one_replay_costs(res)
     best = 1 + int(np.argmin(chi2[1:]))
-    if not chi2[best] < chi2[0] + 2.0 * np.sqrt(12.0 * len(res[0])):
+    if not chi2[best] < chi2[0] + _one_replay_margin(len(res[0])):
         return fit
     if log is not None:
         log(f"mirror {dict(zip(model.params, alts[best - 1][k:].tolist()))} scores {chi2[best]:.1f} against the "

@@ -15,7 +15,6 @@ slope.
 from __future__ import annotations
 
 import functools
-
 import math
 
 import numpy as np
