@@ -179,23 +179,31 @@ def critical_amplitude_lti(x_per_unit: np.ndarray, y_per_unit: np.ndarray, x_op:
 
 
 def critical_amplitude_bisect(delevitates: Callable[[float], bool], lo: float, hi: float,
-                              rel_tol: float = 0.02, max_iter: int = 20) -> dict:
-    """Smallest amplitude in ``[lo, hi]`` for which ``delevitates(a)`` is True (bisection).
+                              rel_tol: float = 0.02, max_iter: int = 20, lo_min: float | None = None) -> dict:
+    """Smallest amplitude in ``[lo_min, hi]`` for which ``delevitates(a)`` is True (bisection).
 
-    Assumes monotonicity (a larger sweep amplitude never stabilises the rotor). Returns
-    ``{"amplitude_m": a or None, "bracket": [lo, hi], "evaluations": n}``; ``None`` when even
-    ``hi`` does not delevitate.
+    Assumes monotonicity (a larger sweep amplitude never stabilises the rotor). The bracket's
+    lower end must levitate: where ``lo`` already delevitates it is halved until it levitates,
+    down to ``lo_min`` (default ``lo / 16``), so the lower end of the search is never reported as
+    the critical amplitude. Returns ``{"amplitude_m": a or None, "bracket": [a_lo, a_hi],
+    "evaluations": n, "below_search": bool}``: ``amplitude_m`` None when even ``hi`` does not
+    delevitate; ``below_search`` True (and ``amplitude_m`` None) when even ``lo_min`` does, the
+    critical amplitude then lying below the bracket ``[0, lo_min]``.
     """
     if not 0 < lo < hi:
         raise ValueError(f"need 0 < lo < hi (got {lo}, {hi})")
-    n = 0
+    lo_min = lo / 16.0 if lo_min is None else float(lo_min)
+    n = 1
     if not delevitates(hi):
-        return {"amplitude_m": None, "bracket": [lo, hi], "evaluations": 1}
-    n += 1
-    if delevitates(lo):
-        return {"amplitude_m": lo, "bracket": [lo, lo], "evaluations": 2}
-    n += 1
+        return {"amplitude_m": None, "bracket": [lo, hi], "evaluations": n, "below_search": False}
     a, b = lo, hi
+    n += 1
+    while delevitates(a):
+        b = a
+        if a <= lo_min or n >= max_iter:
+            return {"amplitude_m": None, "bracket": [0.0, a], "evaluations": n, "below_search": True}
+        a = max(0.5 * a, lo_min)
+        n += 1
     while b - a > rel_tol * b and n < max_iter:
         mid = 0.5 * (a + b)
         n += 1
@@ -203,7 +211,7 @@ def critical_amplitude_bisect(delevitates: Callable[[float], bool], lo: float, h
             b = mid
         else:
             a = mid
-    return {"amplitude_m": b, "bracket": [a, b], "evaluations": n}
+    return {"amplitude_m": b, "bracket": [a, b], "evaluations": n, "below_search": False}
 
 
 def sweep_models(plant, amplifier, selfsensing, weight: control.LTI, pid, allpass_hz: float) -> dict:
@@ -248,7 +256,8 @@ def lti_sweep(name: str, cl: control.StateSpace, ref: Mapping[str, np.ndarray], 
 def nonlinear_critical_amplitude(sim_cfg: Mapping, experiment: str, clearance_m: float, amplitude_max_m: float,
                                  rel_tol: float) -> dict:
     """Bisection (:func:`critical_amplitude_bisect`) over nonlinear simulations of the sweep
-    experiment with its amplitude changed, from a quarter of the clearance to ``amplitude_max_m``."""
+    experiment with its amplitude changed, from a quarter of the clearance (lower where that
+    already delevitates) to ``amplitude_max_m``."""
     from .sim import simulate
 
     spec = sim_cfg["experiments"][experiment]

@@ -69,3 +69,12 @@ def test_bisection_finds_threshold():
     res = critical_amplitude_bisect(lambda a: a >= 1.234e-4, 1e-5, 3e-4, rel_tol=1e-3)
     assert res["amplitude_m"] == pytest.approx(1.234e-4, rel=2e-3)
     assert critical_amplitude_bisect(lambda a: False, 1e-5, 3e-4)["amplitude_m"] is None
+
+def test_bisection_below_its_lower_end_walks_down_instead_of_reporting_that_end():
+    """A threshold under the bracket's lower end is found (the end is halved until the model
+    levitates), not reported as the end itself; one under the whole search is None, flagged."""
+    res = critical_amplitude_bisect(lambda a: a >= 2.0e-5, 6.25e-5, 5e-4, rel_tol=1e-3)
+    assert res["amplitude_m"] == pytest.approx(2.0e-5, rel=2e-3) and not res["below_search"]
+    low = critical_amplitude_bisect(lambda a: a >= 1e-7, 6.25e-5, 5e-4)
+    assert low["amplitude_m"] is None and low["below_search"]
+    assert low["bracket"] == [0.0, pytest.approx(6.25e-5 / 16)]
