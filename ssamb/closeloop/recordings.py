@@ -8,11 +8,14 @@ own (:func:`ssamb.closeloop.analyse`: calibration, effects, joint refit, with it
    estimates :math:`(p_a, s_a)`, :math:`(p_b, s_b)` the disagreement is
    :math:`z_{ab} = (p_a - p_b)/\sqrt{s_a^2 + s_b^2}`; the parameter agrees when every pair has
    :math:`|z_{ab}| \le` ``max_z`` (3);
-2. **combined model**: each parameter is the inverse-variance weighted mean of its identified
-   estimates, :math:`\bar p = \sum w_k p_k / \sum w_k`, :math:`w_k = s_k^{-2}`, with the standard
-   error :math:`(\sum w_k)^{-1/2}` times the Birge ratio :math:`\max(1, \sqrt{\chi^2/(K-1)})`,
+2. **combined model**: one calibration of the shared parameters on all fitting recordings at once
+   (:func:`joint_calibration`: every combination of parameters any recording determines, each
+   recording with its own session parameters), every shared parameter at its estimate, identified
+   or not; without the recordings' data, each parameter is the inverse-variance weighted mean of
+   its identified estimates, :math:`\bar p = \sum w_k p_k / \sum w_k`, :math:`w_k = s_k^{-2}`, with the
+   standard error :math:`(\sum w_k)^{-1/2}` times the Birge ratio :math:`\max(1, \sqrt{\chi^2/(K-1)})`,
    :math:`\chi^2 = \sum w_k (p_k - \bar p)^2` (estimates that scatter beyond their errors widen
-   it); an effect found in any fitting recording enters with its parameters combined the same way;
+   it); an effect found in any fitting recording enters with its parameters combined that way;
 3. **held-out recordings**: the published-parameter (nominal) model and the combined model are
    replayed on every held-out recording (the mean of ``replay_seeds`` replays). Per channel, the
    rms error over the analysed part of the usable stretch, and the channel's noise floor: the rms
@@ -42,7 +45,7 @@ import numpy as np
 from scipy import stats
 
 __all__ = ["combine_estimates", "combine_parameters", "combine_effects", "calibration_agreement",
-           "analyse_recordings", "run_recordings"]
+           "joint_calibration", "analyse_recordings", "run_recordings"]
 
 
 def combine_estimates(values, ses, max_z: float = 3.0) -> dict:
@@ -324,6 +327,160 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
                                 "identified": k in found} for k in ov}
 
 
+def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: int = 700_000):
+    r"""The :class:`~ssamb.closeloop.estimate.Problem` of one calibration over several recordings
+    (:func:`joint_calibration`): the parameter vector is the shared parameters, then each
+    recording's own session parameters; the residual is the recordings' whitened residuals end to
+    end (each part's noise groups kept), infeasible when any recording's replay is."""
+    from .calibration import calibration_problem, overrides_of
+    from .estimate import Problem
+
+    ns, nk = len(shared), len(sess)
+    parts = [calibration_problem(shared, None)] + [calibration_problem(sess, None) for _ in cmps]
+
+    def build(k):
+        def b(theta):
+            ov = overrides_of(shared, theta[:ns])
+            ov.update(overrides_of(sess, theta[ns + k * nk: ns + (k + 1) * nk]))
+            return ov, list(effects)
+        return b
+    evals = [c.evaluator(c.fit, build(k)) for k, c in enumerate(cmps)]
+    manys = [c.evaluate_many(c.fit, build(k)) for k, c in enumerate(cmps)]
+    groups, off = [], 0
+    for c in cmps:
+        g = c.groups(c.fit)
+        groups += [np.asarray(x) + off for x in g]
+        off += len(c.fit.whitener.residual(c.fit.data, c.fit.data))
+
+    def evaluate(theta, seed):
+        return np.concatenate([np.asarray(e(theta, seed), float) for e in evals])
+
+    def evaluate_many(tasks):
+        res = [m(tasks) for m in manys]
+        return [np.concatenate([np.asarray(r[j], float) for r in res]) for j in range(len(tasks))]
+    cat = lambda a: np.concatenate([getattr(p, a) for p in parts])  # noqa: E731
+    return Problem(names=tuple(s.key for s in shared), theta0=cat("theta0"), prior_sd=cat("prior_sd"),
+                   step=cat("step"), lower=cat("lower"), upper=cat("upper"), evaluate=evaluate,
+                   seed0=seed0, groups=groups, evaluate_many=evaluate_many), build
+
+
+def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: list, workers: int = 1,
+                      progress: bool = False) -> dict | None:
+    r"""One calibration of the parameters the fitting recordings share, on all of them at once.
+
+    Each recording's own calibration (:func:`ssamb.closeloop.analyse`) determines a few
+    combinations of the parameters and leaves the others to its prior; which combinations
+    depends on what its excitation moves (a constant reference reads the force balance at one
+    gap, steps read it at several and the loop's dynamics with it). Kept one by one, only a
+    parameter that a single recording pins down would reach the combined model -- often none,
+    and then the combined model is the published one however well each recording's calibrated
+    model predicts. The maximum a posteriori of all fitting data together,
+
+    .. math:: \hat\theta = \arg\min_{\theta, \phi_1..\phi_K} \sum_k \|r_k(\theta, \phi_k)\|^2
+              + \|\theta/\sigma_\theta\|^2 + \sum_k \|\phi_k/\sigma_\phi\|^2,
+
+    with the shared parameters :math:`\theta` and each recording's session parameters
+    :math:`\phi_k` (:attr:`Settings.session`: a sensor re-zeroed between recordings), holds every
+    combination any recording determines. Each recording's residual :math:`r_k` is its fitting
+    part's whitened features (:class:`~ssamb.closeloop.comparison.Comparison`), its whitener
+    built at that recording's own calibrated model (the noise of the replays about a model that
+    levitates like the rig, not about one that may drop the body). The estimator is
+    :func:`ssamb.closeloop.estimate.map_fit`; it starts from the recordings' calibrated values of
+    :math:`\theta` (each with every recording's own :math:`\phi_k`) whose mean replays give the
+    lowest summed cost, since the cost is not convex and a start near one recording's optimum may
+    drop the body on another. The recordings' found effects stay in the model as combined.
+
+    Returns
+    -------
+    dict or None
+        ``overrides`` (every shared parameter at its estimate: the combined model), ``parameters``
+        and ``not_identifiable`` (``closeloop.json`` format, the identified ones with each
+        recording's own calibrated value), ``session`` (recording -> its session overrides) and
+        ``block`` (the fit's summary: start, costs, convergence, identifiability); None without
+        a fitting recording's data or without a shared parameter.
+    """
+    from .calibration import findings, identifiability, parameter_specs
+    from .comparison import Comparison
+    from .data import make_split
+    from .estimate import EstimateSettings, map_fit
+    from .replay import Replayer
+    from .search import _log
+
+    session = tuple(settings.session)
+    cal = settings.calibration or {}
+    shared = parameter_specs(cfg, {k: v for k, v in cal.items() if k not in session})
+    sess = parameter_specs(cfg, {k: cal[k] for k in session})
+    names = [n for n in reps if n in fit]
+    if not shared or not names:
+        return None
+    seeds = range(1, settings.replay_seeds + 1)
+    cmps, replays = [], []
+    try:
+        for n in names:
+            arrays, meta = fit[n]
+            rec = dev.record(arrays, meta, cfg, n)
+            split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s,
+                               settings.min_holdout_s, n)
+            rp = Replayer(cfg, rec, workers=workers)
+            replays.append(rp)
+            c = Comparison.build(rec, split, rp, seeds, settings)
+            c.stops_infeasible = not dev.measured_contact(rec, cfg, settings)
+            own = reps[n].get("final_model") or {}
+            c.calibrate_noise(own.get("overrides") or None, own.get("effects") or [])
+            cmps.append(c)
+        prob, _ = _joint_problem(cmps, shared, sess, effects)
+        ns, nk = len(shared), len(sess)
+        own_theta = []
+        for n in names:
+            ov = (reps[n].get("final_model") or {}).get("overrides") or {}
+            own_theta.append(np.array([sp.theta_of(ov[sp.key]) if sp.key in ov else 0.0 for sp in shared + sess]))
+        phis = np.concatenate([t[ns:] for t in own_theta]) if nk else np.zeros(0)
+        candidates, costs = [], []
+        est = EstimateSettings(**settings.estimate)
+        for j, t in enumerate(own_theta):
+            th = np.clip(np.concatenate([t[:ns], phis]), prob.lower, prob.upper)
+            rs = prob.batch([(th, 600_000 + 500 + s) for s in range(est.centre_runs)])
+            ok = [r for r in rs if np.all(np.isfinite(r))]
+            a = np.mean(ok, axis=0) if 2 * len(ok) > len(rs) else None
+            candidates.append(th)
+            costs.append(float(a @ a) if a is not None else float("inf"))
+            _log(progress, f"joint calibration: start at {names[j]}'s calibration: cost {costs[-1]:.4g} "
+                           f"({len(rs) - len(ok)} of {len(rs)} replays infeasible)")
+        best = int(np.argmin(costs))
+        prob.start = candidates[best] if np.isfinite(costs[best]) else None
+        fit_ = map_fit(prob, est, (lambda m: _log(progress, "  joint calibration " + m)) if progress else None)
+    finally:
+        for rp in replays:
+            rp.close()
+    sd = np.asarray(prob.prior_sd, float)
+    all_names = tuple(sp.key for sp in shared) + tuple(f"{n}:{sp.key}" for n in names for sp in sess)
+    rel = tuple(sp.relative for sp in shared) + tuple(sp.relative for _ in names for sp in sess)
+    ident = identifiability(fit_.info, sd, all_names, settings.identifiable_ratio, cov=fit_.cov_misfit,
+                            cov_noise=fit_.cov, relative=rel)
+    params, not_ident = findings(shared, fit_.theta[:ns], ident)
+    for key, p in params.items():
+        p["per_recording"] = {n: {"value": q["value"], "se": q["se"], "identified": q["identified"]}
+                              for n in names for q in (reps[n].get("calibration") or {}).get("parameters", [])
+                              if q["key"] == key}
+    ov = {sp.key: sp.value(float(t)) for sp, t in zip(shared, fit_.theta[:ns])}
+    sess_ov = {n: {sp.key: sp.value(float(fit_.theta[ns + k * nk + i])) for i, sp in enumerate(sess)}
+               for k, n in enumerate(names)}
+    per = []
+    for i, sp in enumerate(shared):
+        d = ident["per_parameter"][sp.key]
+        scale = abs(sp.nominal) if sp.relative else 1.0
+        per.append({"key": sp.key, "nominal": sp.nominal, "value": ov[sp.key], "se": d["se"] * scale,
+                    "tolerance": sp.prior_sd * scale, "identified": d["identified"], "reason": d["reason"]})
+    block = {"recordings": names, "start": names[best] if np.isfinite(costs[best]) else "nominal",
+             "start_costs": dict(zip(names, costs)), "parameters": per, "rank": ident["rank"],
+             "combinations": ident["combinations"], "converged": bool(fit_.converged),
+             "stopped_short": bool(fit_.stopped_short), "cost": fit_.chi2, "n": fit_.n,
+             "cost_over_noise_floor": fit_.chi2 / fit_.floor if fit_.floor > 0 else None,
+             "simulations": int(fit_.evaluations) * len(names), "infeasible_replays": int(fit_.infeasible)}
+    return {"overrides": ov, "parameters": params, "not_identifiable": not_ident, "session": sess_ov,
+            "block": block}
+
+
 def analyse_recordings(fit: Mapping[str, tuple], hold: Mapping[str, tuple], cfg: Mapping, device="amb",
                        workers: int = 1, progress: bool = False, reports: Mapping[str, dict] | None = None) -> dict:
     """Calibrate on the fitting recordings, judge on the held-out ones (module docstring).
@@ -370,6 +527,12 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
     effects = [f["spec"] for f in found]
     sessions = {k: {"fit": {n: r["parameters"][k] for n, r in reps.items() if k in r.get("parameters", {})},
                     "hold": {}} for k in session}
+    joint = joint_calibration(dev, fit, reps, cfg, settings, effects, workers, progress)
+    if joint is not None:                 # the combined model: every shared parameter, from all fitting data
+        overrides = dict(joint["overrides"])
+        params, not_ident = joint["parameters"], joint["not_identifiable"]
+        for k in session:
+            sessions[k]["fit_joint"] = {n: ov[k] for n, ov in joint["session"].items()}
     seeds = list(range(1, settings.replay_seeds + 1))
     holdout, ev_z, contact, art = {}, {i: [] for i in range(len(found))}, {}, []
     pooled = {c: {"before": [], "after": [], "noise": []} for c in dev.channels}
@@ -434,6 +597,7 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
             "calibration_agreement": calibration_agreement(reps, session),
             "effects_rejected": rejected, "holdout": holdout, "stops_hit_by_model_only": contact,
             "physical_checks": checks, "effects_not_identifiable": _not_identifiable_effects(dev, hold, cfg, settings),
+            "joint_calibration": joint["block"] if joint is not None else None,
             "recordings": {n: _brief(r) for n, r in reps.items()},
             "session_parameters": sessions,
             "validation": {"fit_recordings": list(reps), "holdout_recordings": list(hold),
