@@ -72,7 +72,9 @@ rule closeloop_recording:
     wildcard_constraints:
         rig="[A-Za-z0-9_]+",
         recording="[A-Za-z0-9_]+",
-    threads: 2
+    # One process: a recording's analysis is short (about 20 CPU s) and gains little from a second
+    # one; on two cores it then runs beside the AMB chain's one-process stages instead of after them.
+    threads: 1
     resources:
         mem_mb=2000,
         runtime=30,
@@ -99,7 +101,7 @@ rule closeloop_rig:
         "results/benchmarks/rigs/{rig}.tsv"
     wildcard_constraints:
         rig="[A-Za-z0-9_]+",
-    threads: 2
+    threads: 1  # as closeloop_recording
     resources:
         mem_mb=2000,
         runtime=30,
