@@ -232,7 +232,8 @@ def test_session_parameters_are_refitted_on_each_held_out_recording():
     """A sensor offset that changes between recordings (+-0.3 mm) beside a plant gain that does
     not: declared a session parameter, the offset is neither combined nor required to agree, each
     held-out recording's is calibrated on its own first part, and the gain agrees and halves the
-    held-out error of u."""
+    held-out error of u. The joint calibration of both fitting recordings finds the gain with the
+    error of twice the data and each recording's own offset."""
     from ssamb.closeloop.recordings import analyse_recordings
 
     cfg = {**CFG, "sensor": {"offset_m": 0.0},
@@ -248,3 +249,11 @@ def test_session_parameters_are_refitted_on_each_held_out_recording():
     assert set(s["fit"]) == {"a", "b"} and abs(s["hold"]["c"]["value"] - 2e-4) < 5e-5
     assert out["agreement"]["plant.b_gain"]["agree"]
     assert out["error_after"]["u"]["rms"] <= 0.5 * out["error_before"]["u"]["rms"]
+    # the combined model is one calibration on both fitting recordings (each with its own offset):
+    # the gain within 3 standard errors, its error that of two equal recordings, 1/sqrt(2) of one's
+    g = out["parameters"]["plant.b_gain"]
+    assert out["joint_calibration"]["recordings"] == ["a", "b"] and abs(g["value"] - 1.08) < 3 * g["se"]
+    ratio = g["se"] / min(q["se"] for q in g["per_recording"].values())
+    assert 0.6 < ratio < 0.85, ratio
+    joint = s["fit_joint"]
+    assert abs(joint["a"] - 3e-4) < 5e-6 and abs(joint["b"] + 3e-4) < 5e-6
