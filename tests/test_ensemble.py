@@ -12,7 +12,8 @@ import pytest
 from ssamb.config import load_config
 from ssamb.identification import nrmse_fit
 from ssamb.scenarios import Plan, ceiling_runs, default_scenarios, ensemble_runs, run_configs, run_prefix
-from ssamb.stages.ensemble import ceiling_fits, chain_summary, distribution, fill_shared_nonlinear, reproduces
+from ssamb.stages.ensemble import (ceiling_fits, chain_summary, distribution, explain, fill_shared_nonlinear,
+                                  reproduces)
 from ssamb.stages.summary import ensemble_entries, first_failure
 
 from conftest import ROOT
@@ -109,6 +110,15 @@ def test_distribution_and_fractions():
     s_lti = copy.deepcopy(s_ok)
     s_lti["details"]["validation"]["outcomes"][1]["delevitates"] = True
     assert reproduces({"x": chain_summary(["a", "c"], [s_ok, s_lti])}, CRITERIA)["delevitation"]["chains"] == []
+    # judged by the critical amplitudes (paired by run): 90 um below 120 and 200 um in one realisation;
+    # one whose nominal LTI model is critical at 80 um breaks the order and leaves no common window
+    why = explain({"x": c}, r)["delevitation"]
+    assert "below both LTI models' in 1/1 realisations: a sweep of 90-120 µm" in why
+    s_low = copy.deepcopy(s_ok)
+    s_low["details"]["validation"]["outcomes"][1]["critical_amplitude_m"] = 8e-5
+    two = chain_summary(["a", "c"], [s_ok, s_low])
+    why = explain({"x": two}, reproduces({"x": two}, CRITERIA))["delevitation"]
+    assert "below both LTI models' in 1/2 realisations." in why and "a sweep of" not in why
 
 
 def test_first_failure_names_the_stage_the_others_follow_from():
