@@ -378,6 +378,12 @@ class Device:
         values. Default: none (the calibration starts at the nominal values)."""
         return {}
 
+    def calibration_bounds(self, record: Record, cfg: Mapping) -> dict:
+        """Hard limits of calibrated parameters that the recording implies: dotted config key ->
+        ``(lower, upper)`` in the parameter's unit (either None), e.g. a sensor's zero that would
+        put a stop inside the range the body was measured in. Default: none."""
+        return {}
+
     def checks(self, arrays: Mapping, cfg: Mapping) -> dict:
         """Physical checks of the model with configuration ``cfg`` against one recording: each a
         number computed from the data beside what the model predicts (``name -> dict``; the

@@ -394,6 +394,26 @@ def test_infeasible_replays_are_steps_too_long_not_costs():
     assert all(h["theta"][0] <= 0.6 for h in fit.history if "theta" in h)
 
 
+def test_a_centre_never_drops_the_body_more_often_than_the_last():
+    """Beyond a = 0.5 one replay in four drops the body (seeds divisible by 4), on the way to a
+    truth at a = 1.0 from a = 0: the majority of replays there is feasible, but the fit never
+    centres where more replays drop than where it stands (a prediction averages replays, and a
+    drop is no misfit a lower cost of the others offsets)."""
+    N = 80
+    col = 20.0 * np.random.default_rng(8).standard_normal(N) / math.sqrt(N)
+
+    def evaluate(theta, seed):
+        if theta[0] > 0.5 and seed % 4 == 0:
+            return np.full(N, np.nan)
+        return col * (theta[0] - 1.0) + 0.1 * np.random.default_rng(seed).standard_normal(N)
+
+    prob = Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.05]), np.array([-2.0]), np.array([2.0]),
+                   evaluate)
+    fit = map_fit(prob, EstimateSettings(max_iter=12, short_iter=0))
+    assert fit.infeasible > 0
+    assert all(h["theta"][0] <= 0.5 for h in fit.history if "theta" in h)
+
+
 def test_an_infeasible_start_falls_back_and_a_fit_cut_short_says_so():
     """From an infeasible start the fit starts at its fallback; cut to one iteration with its cost
     far above the noise floor it has stopped short, and says so; given the iterations it
@@ -454,3 +474,18 @@ def test_one_replay_margin_is_two_sd_of_a_cost_difference_at_the_floor():
     d = rng.normal(size=(trials, n))
     diff = np.sum((d + rng.normal(size=(trials, n))) ** 2 - (d + rng.normal(size=(trials, n))) ** 2, axis=1)
     assert _one_replay_margin(n) == pytest.approx(2.0 * diff.std(), rel=0.05)
+
+
+def test_data_implied_limits_narrow_the_bounds_of_a_calibration():
+    """A relative parameter (nominal 2, tolerance 10 %) limited to at most 2.1, and an absolute one
+    (nominal 0, tolerance 1) to at least -0.5: the problem's bounds in theta units are the prior's
+    five tolerances cut at those limits; limits already set are only tightened."""
+    from ssamb.closeloop.calibration import bounded, calibration_problem, parameter_specs
+
+    cfg = {"a": {"gain": 2.0, "zero": 0.0}}
+    specs = bounded(parameter_specs(cfg, {"a.gain": 0.1, "a.zero": 1.0}),
+                    {"a.gain": (None, 2.1), "a.zero": (-0.5, None)})
+    p = calibration_problem(specs, None)
+    assert p.upper == pytest.approx([0.05, 5.0]) and p.lower == pytest.approx([-0.5, -0.5])
+    again = bounded(specs, {"a.gain": (None, 2.5), "a.zero": (-0.2, None)})
+    assert again[0].upper == 2.1 and again[1].lower == -0.2

@@ -252,3 +252,24 @@ def test_parameters_outside_the_physical_ranges_are_named():
     cfg = dev.default_config()
     assert dev.physical(cfg) is None
     assert "amplifier.drop_v" in dev.physical(apply_overrides(cfg, {"amplifier.drop_v": -0.5}))
+
+
+def test_the_sensor_zero_cannot_put_the_face_where_the_ball_floated():
+    """The sensor's zero (the reading at the magnet's face) is limited to the lowest reading of the
+    compared parts, or of the ball held at the face, plus three standard deviations of a reading:
+    escalon never shows the ball at the face (its lowest levitated reading sets it), constante
+    does (clipped at the ADC's 0)."""
+    from ssamb.maglev1d.checks import face_reading
+
+    sd = np.hypot(CFG["noise"]["position_m"], controller.position_lsb_m(CFG) / np.sqrt(12))
+    for name in ("escalon", "constante"):
+        rec = _record(name)
+        y = rec.channels["y"]
+        low = min(float(np.min(y[a:b])) for a, b in rec.usable)
+        f = face_reading({**rec.channels, "yd": rec.inputs["yd"]}, CFG)
+        if f["samples"]:
+            low = min(low, f["reading_m"])
+        lo, hi = DEV.calibration_bounds(rec, CFG)["sensors.position_offset_m"]
+        assert lo is None and hi == pytest.approx(low + 3 * sd)
+    assert DEV.calibration_bounds(_record("escalon"), CFG)["sensors.position_offset_m"][1] > 1e-3
+    assert DEV.calibration_bounds(_record("constante"), CFG)["sensors.position_offset_m"][1] < 1e-4

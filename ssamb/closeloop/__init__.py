@@ -41,7 +41,7 @@ __all__ = ["analyse", "run_closeloop", "DataError"]
 def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", progress: bool = False,
              workers: int = 1, device="amb"):
     from ..device import get_device
-    from .calibration import parameter_specs
+    from .calibration import bounded, parameter_specs
     from .comparison import Comparison
     from .data import make_split
     from .replay import Replayer
@@ -57,13 +57,18 @@ def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data",
     dev.validate(arrays, source)
     notes = dev.notes(arrays, meta, cfg)
     rec = dev.record(arrays, meta, cfg, source)
+    specs = bounded(specs, dev.calibration_bounds(rec, cfg))
     split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s,
                        settings.min_holdout_s, source)
     replay = Replayer(cfg, rec, workers=int(workers))
     try:
         cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings)
-        cmp.calibrate_noise()
-        ft = compute_features(rec, cmp.fit.frame, dev.views(rec.channels), dev.views(cmp.prediction()), settings)
+        # the noise is read about the model the calibration starts from (the nominal one, unless the
+        # device's data imply a start): replays that drop the body are no model of the rig's noise
+        at = dev.initial_estimate(rec, cfg) if specs else {}
+        cmp.calibrate_noise(at or None)
+        ft = compute_features(rec, cmp.fit.frame, dev.views(rec.channels), dev.views(cmp.prediction(at or None)),
+                              settings)
         cmp.set_lines(sorted(ln["f_hz"] for ln in ft.lines))
         result = search(cmp, specs, settings, progress=progress)
     finally:

@@ -38,7 +38,7 @@ import numpy as np
 
 from .estimate import EstimateSettings, MapFit, Problem, _inverse, map_fit
 
-__all__ = ["ParameterSpec", "parameter_specs", "overrides_of", "calibration_problem", "identifiability",
+__all__ = ["ParameterSpec", "parameter_specs", "bounded", "overrides_of", "calibration_problem", "identifiability",
            "findings", "Calibration", "calibrate_model"]
 
 
@@ -56,13 +56,16 @@ class ParameterSpec:
     """A calibratable parameter: dotted config key, nominal value and prior tolerance.
 
     ``relative`` parameters are :math:`p = p_0 (1 + \\theta)`, absolute ones :math:`p = \\theta`
-    (nominal 0); ``prior_sd`` is in :math:`\\theta` units.
+    (nominal 0); ``prior_sd`` is in :math:`\\theta` units. ``lower``/``upper`` (in the parameter's
+    own unit, optional) are hard limits the data imply (:meth:`ssamb.device.Device.calibration_bounds`).
     """
 
     key: str
     nominal: float
     relative: bool
     prior_sd: float
+    lower: float | None = None
+    upper: float | None = None
 
     def value(self, theta: float) -> float:
         return self.nominal * (1.0 + theta) if self.relative else self.nominal + theta
@@ -95,6 +98,23 @@ def parameter_specs(cfg: Mapping, tolerances: Mapping[str, float]) -> list[Param
     return out
 
 
+def bounded(specs: list[ParameterSpec], bounds: Mapping[str, tuple]) -> list[ParameterSpec]:
+    """``specs`` with the hard limits ``bounds`` (key -> ``(lower, upper)``, either None) the data
+    imply (:meth:`ssamb.device.Device.calibration_bounds`), tightening any already set."""
+    import dataclasses
+
+    out = []
+    for s in specs:
+        lo, hi = bounds.get(s.key, (None, None))
+        if lo is not None and s.lower is not None:
+            lo = max(lo, s.lower)
+        if hi is not None and s.upper is not None:
+            hi = min(hi, s.upper)
+        out.append(dataclasses.replace(s, lower=s.lower if lo is None else float(lo),
+                                       upper=s.upper if hi is None else float(hi)))
+    return out
+
+
 def overrides_of(specs: list[ParameterSpec], theta: np.ndarray) -> dict:
     """Config overrides of a parameter vector."""
     return {s.key: s.value(float(t)) for s, t in zip(specs, theta)}
@@ -113,9 +133,16 @@ def calibration_problem(specs: list[ParameterSpec], residual, seed0: int = 1, st
     """
     sd = np.array([s.prior_sd for s in specs])
     lo = np.array([max(-5 * s.prior_sd, -0.9) if s.relative else -5 * s.prior_sd for s in specs])
+    hi = 5 * sd
+    for j, s in enumerate(specs):          # the limits the data imply, within the prior's
+        if s.upper is not None:
+            hi[j] = min(hi[j], s.theta_of(s.upper))
+        if s.lower is not None:
+            lo[j] = max(lo[j], s.theta_of(s.lower))
+        lo[j] = min(lo[j], hi[j] - 5 * sd[j])
     return Problem(names=tuple(s.key for s in specs), theta0=np.zeros(len(specs)), prior_sd=sd,
                    step=np.array([min(x.prior_sd, max_step_rel) if x.relative else x.prior_sd for x in specs]),
-                   lower=lo, upper=5 * sd,
+                   lower=lo, upper=hi,
                    evaluate=(lambda th, seed: residual(overrides_of(specs, th), seed)) if residual else None,
                    start=start, seed0=seed0, groups=groups)
 

@@ -37,8 +37,9 @@ standard errors off). This module therefore never compares single evaluations:
    more than two standard deviations of the difference of two noisy anchors at that cost
    (:func:`_margin`); a rejected trial's runs stay in the pool and inform :math:`B` along the step.
    A step where most replays are **infeasible** -- the body hits a stop the data do not hit, or
-   the parameters leave the device's physical domain (the residual is NaN) -- is rejected without
-   a cost; infeasible runs never enter the surrogate, and a design with many of them is redone
+   the parameters leave the device's physical domain (the residual is NaN) -- or more of them
+   than at the current centre, is rejected without a cost (one with fewer is accepted without
+   one); infeasible runs never enter the surrogate, and a design with many of them is redone
    with half the steps (a step that drops the ball is no finite difference of the cost).
 6. **Replicate** the pairs at the same centre when the step is at the noise level but some
    direction looks informative while its Jacobian is still noise (a weakly determined valley
@@ -781,6 +782,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     base_step = prob.step.copy()        # the design's steps (probes, refreshes and widening change them)
     runs: list = []
     C, infeasible = _centre(prob, theta, 0, s, runs)
+    dropped = infeasible                # the current centre's infeasible replays
     k = 0
     fb = prob.fallback if prob.fallback is not None else prob.theta0
     fb = np.clip(np.asarray(fb, float), prob.lower, prob.upper)
@@ -791,6 +793,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         theta, k = fb.copy(), 1
         C, bad = _centre(prob, theta, k, s, runs)
         infeasible += bad
+        dropped = bad
     if len(C) < 2:
         if log is not None:
             log(f"the start is infeasible ({infeasible} replays at the start and its fallback hit a stop or leave the "
@@ -892,11 +895,14 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         taken = float(np.max(np.abs(d) / (s.max_step * prob.step)))
         Ct, bad = _centre(prob, np.clip(theta + d, prob.lower, prob.upper), k, s, runs)
         infeasible += bad
-        if 2 * bad > s.centre_runs or len(Ct) < 2:
+        if 2 * bad > s.centre_runs or len(Ct) < 2 or bad > dropped:
             # the step left the region where the body floats (or the physical domain): not a
             # cost to compare, a step too long. A model near its stability margin drops the body
             # in some realisations of the loop's noise (the data are one realisation): the step
-            # is infeasible when most replays there do, and the others make its anchor
+            # is infeasible when most replays there do, or more than at the current centre (a
+            # prediction is the mean of replays, and one that drops the body is no prediction of
+            # data in which it floats: the cost of the others cannot buy a drop), and the others
+            # make its anchor
             trust = s.reject_shrink * min(trust, taken)
             history[-1]["infeasible"] = bad
             if log is not None:
@@ -905,13 +911,15 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             continue
         rhos.append(float(np.mean(Ct.var(axis=0, ddof=1))) if len(Ct) > 1 else 0.0)
         at = Ct.mean(axis=0)
-        if at @ at <= a @ a + _margin(len(a), rho / max(s.centre_runs, 1), float(a @ a)):
+        if bad < dropped or at @ at <= a @ a + _margin(len(a), rho / max(s.centre_runs, 1), float(a @ a)):
+            # fewer replays that drop the body come first: the anchors of centres with and without
+            # drops average different realisations, and a drop is no misfit a lower cost offsets
             # the region grows when the cost fell by at least a quarter of what the surrogate
             # promised (a surrogate that over-promises keeps its region)
             r_pred = a + B @ d
             promised = float(a @ a - r_pred @ r_pred)
             good = promised <= 0 or float(a @ a - at @ at) >= 0.25 * promised
-            theta, a, C = np.clip(theta + d, prob.lower, prob.upper), at, Ct
+            theta, a, C, dropped = np.clip(theta + d, prob.lower, prob.upper), at, Ct, bad
             trust = min(s.max_trust, 2 * trust) if good else trust
             replicates = 0
             k, bad = _design(prob, theta, k, s, runs, log, base_step)

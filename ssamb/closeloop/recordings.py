@@ -297,12 +297,14 @@ def _holdout_z(dev, name: str, arrays, meta, cfg, settings, overrides: dict, wit
 _SESSION_ERRORS_ON = ", after each one's own fitting part, on which its session parameters are calibrated"
 
 
-def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, settings, workers: int) -> tuple:
+def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, settings, workers: int,
+                 starts: list = ()) -> tuple:
     """The session parameters of one held-out recording, calibrated on its own fitting part with
-    everything else at ``overrides`` (the combined model): ``(session overrides, the part's slice
-    to judge, their estimates)``."""
+    everything else at ``overrides`` (the combined model), from the device's start for them or
+    one of ``starts`` (session overrides, e.g. the fitting recordings' own): ``(session overrides,
+    the part's slice to judge, their estimates)``."""
     from ..config import apply_overrides
-    from .calibration import calibrate_model, findings, parameter_specs
+    from .calibration import bounded, calibrate_model, findings, overrides_of, parameter_specs
     from .comparison import Comparison
     from .data import make_split
     from .estimate import EstimateSettings
@@ -310,13 +312,30 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
 
     split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s, settings.min_holdout_s, name)
     base = apply_overrides(cfg, overrides) if overrides else cfg
-    specs = parameter_specs(base, {k: settings.calibration[k] for k in settings.session})
+    specs = bounded(parameter_specs(base, {k: settings.calibration[k] for k in settings.session}),
+                    dev.calibration_bounds(rec, base))
     replay = Replayer(base, rec, workers=workers)
     try:
         cmp = Comparison.build(rec, split, replay, range(1, settings.replay_seeds + 1), settings)
-        cmp.calibrate_noise(None, effects)
         init = dev.initial_estimate(cmp.record, base)
-        start = np.array([sp.theta_of(init[sp.key]) if sp.key in init else 0.0 for sp in specs])
+        cands = [{k: v for k, v in init.items() if k in settings.session}] + [dict(c) for c in starts]
+        est = EstimateSettings(**settings.estimate)
+        # the noise read about the data's own start; the calibration starts from the candidate (that
+        # start, or a fitting recording's session values) whose replays drop the body least and fit
+        # the recording's first part best, and reads the noise about it
+        cmp.calibrate_noise(cands[0] or None, effects)
+        ev = cmp.evaluator(cmp.fit, lambda th: (overrides_of(specs, th), list(effects)))
+        thetas = [np.clip([sp.theta_of(c[sp.key]) if sp.key in c else 0.0 for sp in specs],
+                          [-np.inf if sp.lower is None else sp.theta_of(sp.lower) for sp in specs],
+                          [np.inf if sp.upper is None else sp.theta_of(sp.upper) for sp in specs]) for c in cands]
+        score = []
+        for th in thetas:
+            rs = [ev(th, 650_500 + j) for j in range(est.centre_runs)]
+            ok = [r for r in rs if np.all(np.isfinite(r))]
+            a = np.mean(ok, axis=0) if ok else None
+            score.append((len(rs) - len(ok), float(a @ a) if a is not None else float("inf")))
+        start = thetas[min(range(len(thetas)), key=lambda j: score[j])]
+        cmp.calibrate_noise(overrides_of(specs, start), effects)
         cal = calibrate_model(cmp, specs, effects, EstimateSettings(**settings.estimate), settings.identifiable_ratio,
                               settings.conflict_z, start=start)
     finally:
@@ -328,6 +347,7 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
 
 
 def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: int = 700_000):
+    # sess: per recording, its session parameters' specs (their data-implied limits differ)
     r"""The :class:`~ssamb.closeloop.estimate.Problem` of one calibration over several recordings
     (:func:`joint_calibration`): the parameter vector is the shared parameters, then each
     recording's own session parameters; the residual is the recordings' whitened residuals end to
@@ -335,13 +355,13 @@ def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: i
     from .calibration import calibration_problem, overrides_of
     from .estimate import Problem
 
-    ns, nk = len(shared), len(sess)
-    parts = [calibration_problem(shared, None)] + [calibration_problem(sess, None) for _ in cmps]
+    ns, nk = len(shared), len(sess[0]) if sess else 0
+    parts = [calibration_problem(shared, None)] + [calibration_problem(sp, None) for sp in sess]
 
     def build(k):
         def b(theta):
             ov = overrides_of(shared, theta[:ns])
-            ov.update(overrides_of(sess, theta[ns + k * nk: ns + (k + 1) * nk]))
+            ov.update(overrides_of(sess[k], theta[ns + k * nk: ns + (k + 1) * nk]))
             return ov, list(effects)
         return b
     evals = [c.evaluator(c.fit, build(k)) for k, c in enumerate(cmps)]
@@ -362,6 +382,28 @@ def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: i
     return Problem(names=tuple(s.key for s in shared), theta0=cat("theta0"), prior_sd=cat("prior_sd"),
                    step=cat("step"), lower=cat("lower"), upper=cat("upper"), evaluate=evaluate,
                    seed0=seed0, groups=groups, evaluate_many=evaluate_many), build
+
+
+def _session_start(cmp, shared: list, sess: list, theta_shared, phi0, effects: list, est) -> np.ndarray:
+    """A recording's session parameters (:attr:`Settings.session`) calibrated on its fitting part
+    with the shared parameters held at ``theta_shared`` (a start for :func:`joint_calibration`),
+    from ``phi0``; the device's own start for them when ``phi0`` is infeasible there."""
+    import dataclasses
+
+    from .calibration import calibration_problem, overrides_of
+    from .estimate import map_fit
+
+    if not sess:
+        return np.zeros(0)
+    fixed = overrides_of(shared, theta_shared)
+
+    def build(phi):
+        return {**fixed, **overrides_of(sess, phi)}, list(effects)
+    init = cmp.device.initial_estimate(cmp.record, cmp.replay.cfg)
+    prob = calibration_problem(sess, None, seed0=650_000, start=np.asarray(phi0, float))
+    prob.fallback = np.array([sp.theta_of(init[sp.key]) if sp.key in init else 0.0 for sp in sess])
+    prob.evaluate, prob.evaluate_many = cmp.evaluator(cmp.fit, build), cmp.evaluate_many(cmp.fit, build)
+    return map_fit(prob, dataclasses.replace(est, max_iter=4, short_iter=0)).theta
 
 
 def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: list, workers: int = 1,
@@ -399,7 +441,7 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
         ``block`` (the fit's summary: start, costs, convergence, identifiability); None without
         a fitting recording's data or without a shared parameter.
     """
-    from .calibration import findings, identifiability, parameter_specs
+    from .calibration import bounded, findings, identifiability, parameter_specs
     from .comparison import Comparison
     from .data import make_split
     from .estimate import EstimateSettings, map_fit
@@ -409,16 +451,20 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
     session = tuple(settings.session)
     cal = settings.calibration or {}
     shared = parameter_specs(cfg, {k: v for k, v in cal.items() if k not in session})
-    sess = parameter_specs(cfg, {k: cal[k] for k in session})
+    sess0 = parameter_specs(cfg, {k: cal[k] for k in session})
     names = [n for n in reps if n in fit]
     if not shared or not names:
         return None
+    sess = []
     seeds = range(1, settings.replay_seeds + 1)
     cmps, replays = [], []
     try:
         for n in names:
             arrays, meta = fit[n]
             rec = dev.record(arrays, meta, cfg, n)
+            lim = dev.calibration_bounds(rec, cfg)
+            shared = bounded(shared, lim)          # every recording's limits on a shared parameter
+            sess.append(bounded(sess0, lim))
             split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s,
                                settings.min_holdout_s, n)
             rp = Replayer(cfg, rec, workers=workers)
@@ -429,32 +475,36 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
             c.calibrate_noise(own.get("overrides") or None, own.get("effects") or [])
             cmps.append(c)
         prob, _ = _joint_problem(cmps, shared, sess, effects)
-        ns, nk = len(shared), len(sess)
+        ns, nk = len(shared), len(sess0)
         own_theta = []
         for n in names:
             ov = (reps[n].get("final_model") or {}).get("overrides") or {}
-            own_theta.append(np.array([sp.theta_of(ov[sp.key]) if sp.key in ov else 0.0 for sp in shared + sess]))
-        phis = np.concatenate([t[ns:] for t in own_theta]) if nk else np.zeros(0)
-        candidates, costs = [], []
+            own_theta.append(np.array([sp.theta_of(ov[sp.key]) if sp.key in ov else 0.0 for sp in shared + sess0]))
+        candidates, costs, dropped = [], [], []
         est = EstimateSettings(**settings.estimate)
         for j, t in enumerate(own_theta):
-            th = np.clip(np.concatenate([t[:ns], phis]), prob.lower, prob.upper)
+            # the other recordings re-zeroed under this recording's shared parameters (their own
+            # session parameters belong to their own calibrations of the shared ones)
+            phis = [t[ns:] if k == j else _session_start(c, shared, sess[k], t[:ns], own_theta[k][ns:], effects, est)
+                    for k, c in enumerate(cmps)]
+            th = np.clip(np.concatenate([t[:ns]] + phis), prob.lower, prob.upper)
             rs = prob.batch([(th, 600_000 + 500 + s) for s in range(est.centre_runs)])
             ok = [r for r in rs if np.all(np.isfinite(r))]
             a = np.mean(ok, axis=0) if 2 * len(ok) > len(rs) else None
             candidates.append(th)
             costs.append(float(a @ a) if a is not None else float("inf"))
+            dropped.append(len(rs) - len(ok))
             _log(progress, f"joint calibration: start at {names[j]}'s calibration: cost {costs[-1]:.4g} "
                            f"({len(rs) - len(ok)} of {len(rs)} replays infeasible)")
-        best = int(np.argmin(costs))
+        best = min(range(len(costs)), key=lambda j: (dropped[j], costs[j]))
         prob.start = candidates[best] if np.isfinite(costs[best]) else None
         fit_ = map_fit(prob, est, (lambda m: _log(progress, "  joint calibration " + m)) if progress else None)
     finally:
         for rp in replays:
             rp.close()
     sd = np.asarray(prob.prior_sd, float)
-    all_names = tuple(sp.key for sp in shared) + tuple(f"{n}:{sp.key}" for n in names for sp in sess)
-    rel = tuple(sp.relative for sp in shared) + tuple(sp.relative for _ in names for sp in sess)
+    all_names = tuple(sp.key for sp in shared) + tuple(f"{n}:{sp.key}" for n in names for sp in sess0)
+    rel = tuple(sp.relative for sp in shared) + tuple(sp.relative for _ in names for sp in sess0)
     ident = identifiability(fit_.info, sd, all_names, settings.identifiable_ratio, cov=fit_.cov_misfit,
                             cov_noise=fit_.cov, relative=rel)
     params, not_ident = findings(shared, fit_.theta[:ns], ident)
@@ -463,7 +513,7 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
                               for n in names for q in (reps[n].get("calibration") or {}).get("parameters", [])
                               if q["key"] == key}
     ov = {sp.key: sp.value(float(t)) for sp, t in zip(shared, fit_.theta[:ns])}
-    sess_ov = {n: {sp.key: sp.value(float(fit_.theta[ns + k * nk + i])) for i, sp in enumerate(sess)}
+    sess_ov = {n: {sp.key: sp.value(float(fit_.theta[ns + k * nk + i])) for i, sp in enumerate(sess0)}
                for k, n in enumerate(names)}
     per = []
     for i, sp in enumerate(shared):
@@ -542,7 +592,8 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
         sl = _analysed_range(rec, settings)
         ov = dict(overrides)
         if session:                       # re-zeroed on the recording's own first part, judged on the rest
-            sov, sl, est = _session_fit(dev, name, rec, cfg, overrides, effects, settings, workers)
+            sov, sl, est = _session_fit(dev, name, rec, cfg, overrides, effects, settings, workers,
+                                        list(joint["session"].values()) if joint is not None else [])
             ov.update(sov)
             for k, e in est.items():
                 sessions[k]["hold"][name] = e

@@ -34,6 +34,13 @@ from .data import (COLUMNS, levitated_mask, levitated_stretches, load_data, vali
 __all__ = ["Maglev1D"]
 
 
+def _chk_face(record: Record, cfg: Mapping) -> dict:
+    """:func:`ssamb.maglev1d.checks.face_reading` of a record."""
+    from .checks import face_reading
+
+    return face_reading({**record.channels, "yd": record.inputs["yd"]}, cfg)
+
+
 class Maglev1D(Device):
     """The 1-DOF levitated steel ball (module docstring)."""
 
@@ -93,6 +100,25 @@ class Maglev1D(Device):
             span = 5 * tol * (abs(nom) if nom != 0 else 1.0)
             out[key] = float(np.clip(val, nom - span, nom + span))
         return out
+
+    def calibration_bounds(self, record: Record, cfg: Mapping) -> dict:
+        r"""The position sensor's zero :math:`o_s` is the reading of the ball at the magnet's face
+        (:mod:`.physics`: reading :math:`g_s y + o_s`, the face at :math:`y = 0`), so a model whose
+        :math:`o_s` lies above a reading the levitated ball gave puts the face inside the range it
+        floated in. Upper limit: the lowest reading of the compared parts, or the reading of the
+        ball held at the face where the recording shows one (clipped at the ADC's 0: the zero lies
+        at or below it), each plus three standard deviations of a reading (its noise and its
+        rounding)."""
+        y = record.channels["y"]
+        lows = [float(np.min(y[a:b])) for a, b in record.usable]
+        f = _chk_face(record, cfg)
+        if f["samples"]:
+            lows.append(float(f["reading_m"]))
+        if not lows:
+            return {}
+        qy = _ctl.position_lsb_m(cfg)
+        sd = float(np.hypot(cfg["noise"]["position_m"], qy / np.sqrt(12.0)))
+        return {"sensors.position_offset_m": (None, min(lows) + 3 * sd)}
 
     def checks(self, arrays: Mapping, cfg: Mapping) -> dict:
         """Physical checks of the model with ``cfg`` against one recording (:mod:`.checks`), each with a
