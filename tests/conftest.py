@@ -36,6 +36,12 @@ ROOT = Path(__file__).resolve().parent.parent
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 #: the reduced configuration merged over config.yaml
 SMOKE_ARGS = ("--configfile", "config.yaml", "smoke.yaml")
+#: processes for the replays of a close-the-loop analysis inside a test (the result does not
+#: depend on it: tests/test_closeloop.py::test_the_result_does_not_depend_on_the_workers). One
+#: on a pytest-xdist worker: the session's workers already keep every CPU busy, and a second
+#: process per analysis would only add the forking and the pipes' traffic to the session's CPU
+#: time; up to two in a session of one process.
+REPLAY_WORKERS = 1 if "PYTEST_XDIST_WORKER" in os.environ else min(2, len(os.sched_getaffinity(0)))
 
 
 def _shared_root() -> Path | None:

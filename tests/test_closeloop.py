@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import REPLAY_WORKERS
 
 from ssamb.cli import main
 from ssamb.closeloop import run_closeloop
@@ -295,7 +296,8 @@ def test_levitation_at_rest_closes_the_loop(tmp_path):
     data = tmp_path / "rig.npz"
     run_scenario(sc, data, progress=False)
     out = tmp_path / "out"
-    assert main(["closeloop", str(data), "--out", str(out), "--quiet", "--config", str(config)]) == 0
+    assert main(["closeloop", str(data), "--out", str(out), "--quiet", "--config", str(config), "--workers",
+                 str(REPLAY_WORKERS)]) == 0
     rep = json.loads((out / "closeloop.json").read_text())
     assert any("nothing excites the loop" in n for n in rep["notes"]), rep["notes"]
     assert [e["name"] for e in rep["effects"]] == ["static_load"], rep["summary"]

@@ -16,11 +16,11 @@ The randomized acceptance suite (experiments, parameters and effects drawn; nois
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import pytest
 import yaml
+from conftest import REPLAY_WORKERS as WORKERS
 
 from ssamb.closeloop import analyse
 from ssamb.config import get as _get, load_config
@@ -33,8 +33,6 @@ EXC = {"kind": "multisine", "point": "position", "axis": "both", "amplitude_m": 
        "f_max_hz": 100, "f_resolution_hz": 5, "periods": 5, "seed": 3}
 NOISE = {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 11}
 SEED = 20260101
-#: processes for the analysis's replays (the result does not depend on it)
-WORKERS = min(2, len(os.sched_getaffinity(0)))
 pytestmark = pytest.mark.slow
 
 

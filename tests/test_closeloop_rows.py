@@ -12,11 +12,11 @@ replays per prediction.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import pytest
 import yaml
+from conftest import REPLAY_WORKERS as WORKERS
 from scipy import stats
 
 from ssamb.config import get, load_config
@@ -25,7 +25,6 @@ from ssamb.rig import effective_truth, load_scenario, rig_data
 pytestmark = pytest.mark.slow
 
 REPO = Path(__file__).resolve().parent.parent
-WORKERS = min(2, len(os.sched_getaffinity(0)))
 NOISE = {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 11}
 
 
