@@ -273,3 +273,23 @@ def test_the_sensor_zero_cannot_put_the_face_where_the_ball_floated():
         assert lo is None and hi == pytest.approx(low + 3 * sd)
     assert DEV.calibration_bounds(_record("escalon"), CFG)["sensors.position_offset_m"][1] > 1e-3
     assert DEV.calibration_bounds(_record("constante"), CFG)["sensors.position_offset_m"][1] < 1e-4
+
+
+def test_what_one_level_cannot_tell_and_a_start_that_floats_stays():
+    """Along one_level_family the equilibrium current and the gap-dependent inductance at the
+    level are those of the model it starts from (the data at one level cannot tell them apart);
+    constante's start, whose replays float, keeps its nominal sensor scale."""
+    from ssamb.maglev1d.checks import start_estimate
+    from ssamb.maglev1d.device import one_level_family
+    from ssamb.maglev1d.physics import equilibrium_current_a, inductance_h
+
+    b = CFG["ball"]
+    y_read, a, k = 0.005, 0.004, 0.04
+    for g0, g in ((1.0, 0.7), (0.8, 1.2)):
+        a2, k2 = one_level_family(a, k, g0, g, y_read)
+        same = [(equilibrium_current_a(y_read / gs, b["mass_kg"], b["gravity_m_per_s2"], kk, aa),
+                 inductance_h(y_read / gs, 0.0, kk, aa)) for gs, aa, kk in ((g0, a, k), (g, a2, k2))]
+        assert same[1] == pytest.approx(same[0], rel=1e-12)
+    rec = _record("constante")
+    est = start_estimate({**rec.channels, "yd": rec.inputs["yd"]}, CFG)
+    assert "sensors.position_gain" not in est and DEV._levitating_gain(rec, CFG, est) == est

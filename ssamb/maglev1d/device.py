@@ -31,7 +31,24 @@ from . import controller as _ctl
 from . import physics as _phys
 from .data import (COLUMNS, levitated_mask, levitated_stretches, load_data, validate_arrays)
 
-__all__ = ["Maglev1D"]
+__all__ = ["Maglev1D", "one_level_family"]
+
+
+def one_level_family(a_m: float, k_h: float, gain: float, new_gain: float, level_m: float) -> tuple:
+    r"""The force law's length and constant :math:`(a', k')` that, with the position sensor's
+    scale ``new_gain`` instead of ``gain`` (its zero at the magnet's face), leave the equilibrium
+    current :math:`\sqrt{2mg/(ka)}\,(a + Y/g_s)` and the gap-dependent inductance
+    :math:`ka/(a + Y/g_s)` at the reading ``level_m`` :math:`Y` unchanged: :math:`a' + Y/g' = a + Y/g_s`,
+    :math:`k'a' = ka`.
+
+    Examples
+    --------
+    >>> a2, k2 = one_level_family(0.005, 0.03, 1.0, 0.8, 0.005)
+    >>> round(a2 + 0.005 / 0.8, 12), round(k2 * a2, 12)
+    (0.01, 0.00015)
+    """
+    a2 = a_m + level_m / gain - level_m / new_gain
+    return a2, k_h * a_m / a2
 
 
 def _chk_face(record: Record, cfg: Mapping) -> dict:
@@ -91,8 +108,12 @@ class Maglev1D(Device):
         from .checks import start_estimate
 
         arrays = {**record.channels, "yd": record.inputs["yd"]}
+        est = start_estimate(arrays, cfg)
+        gk = "sensors.position_gain"
+        if gk not in est and gk in self.priors(cfg) and {"magnet.k_h", "magnet.a_m"} & set(self.priors(cfg)):
+            est = self._levitating_gain(record, cfg, est)
         out = {}
-        for key, val in start_estimate(arrays, cfg).items():
+        for key, val in est.items():
             tol = self.priors(cfg).get(key)
             if tol is None:
                 continue
@@ -100,6 +121,49 @@ class Maglev1D(Device):
             span = 5 * tol * (abs(nom) if nom != 0 else 1.0)
             out[key] = float(np.clip(val, nom - span, nom + span))
         return out
+
+    def _levitating_gain(self, record: Record, cfg: Mapping, est: Mapping, seeds: int = 4) -> dict:
+        r"""The start's sensor scale where the data do not determine it (no settled plateaus at two
+        levels: :func:`ssamb.maglev1d.checks.start_estimate` leaves it at its nominal value).
+
+        At one reading level :math:`Y` (the zero at the face, :math:`o_s = 0`) the equilibrium
+        current :math:`(C/g_s)(a g_s + Y)`, :math:`C = \sqrt{2mg/(ka)}`, and the inductance
+        :math:`k a g_s/(a g_s + Y)` stay as they are for another scale :math:`g'` with
+        :math:`a' = a + Y/g_s - Y/g'` and :math:`k' a' = k a`: the data at one level cannot tell
+        these models apart, but their loops differ, and the rig's ball floated. The start is the
+        member nearest the nominal scale (steps of half its tolerance, up to two tolerances) whose
+        replays with ``seeds`` seeds keep the ball off the stops (fewest drops when none does).
+        """
+        from ..config import apply_overrides
+
+        g0 = float(cfg["sensors"]["position_gain"])
+        tol = float(self.priors(cfg)["sensors.position_gain"])
+        a = float(est.get("magnet.a_m", cfg["magnet"]["a_m"]))
+        k = float(est.get("magnet.k_h", cfg["magnet"]["k_h"]))
+        o = float(est.get("sensors.position_offset_m", cfg["sensors"]["position_offset_m"]))
+        lev = np.concatenate([record.channels["y"][s:e] for s, e in record.usable]) if record.usable else None
+        if lev is None or not len(lev):
+            return dict(est)
+        y_read = float(np.mean(lev)) - o                   # the level, from the face
+        best, fewest = dict(est), None
+        for step in (0.0, -0.5, 0.5, -1.0, 1.0, -1.5, 1.5, -2.0, 2.0):
+            g = g0 * (1.0 + step * tol)
+            if g <= 0:
+                continue
+            a2, k2 = one_level_family(a, k, g0, g, y_read)
+            if a2 <= 0:
+                continue
+            cand = dict(est) if step == 0.0 else {**est, "sensors.position_gain": g, "magnet.a_m": a2,
+                                                  "magnet.k_h": k2}
+            c = apply_overrides(cfg, cand)
+            if self.physical(c):
+                continue
+            drops = sum(bool(self.replay(c, record, [], record.n, 9_000 + j).contact) for j in range(seeds))
+            if fewest is None or drops < fewest:
+                best, fewest = cand, drops
+            if drops == 0:
+                break
+        return best
 
     def calibration_bounds(self, record: Record, cfg: Mapping) -> dict:
         r"""The position sensor's zero :math:`o_s` is the reading of the ball at the magnet's face
