@@ -196,3 +196,20 @@ def test_rig_section_lists_recordings_agreement_and_held_out_errors(ctx):
     err = sec.tables()[1]
     assert {r[1] for r in err.rows} == {"y", "u"} and any(r[0] == "all held out" for r in err.rows)
     assert any(t.header[0] == "effect" and t.rows[0][0] == "bias" for t in sec.tables())
+
+
+def test_the_rig_section_lists_the_joint_calibration_identified_or_not():
+    """The combined model's table holds every shared parameter of the joint calibration, identified
+    or not, beside each recording's own calibrated value, and says where it started and whether
+    it stopped short."""
+    from ssamb.report.sections.rigs import _joint
+
+    par = [{"key": "k", "nominal": 1.0, "value": 1.2, "se": 0.3, "identified": False},
+           {"key": "g", "nominal": 2.0, "value": 2.1, "se": 0.01, "identified": True}]
+    C = {"joint_calibration": {"recordings": ["a", "b"], "start": "a", "cost_over_noise_floor": 5.1,
+                               "stopped_short": True, "parameters": par},
+         "calibration_agreement": {"k": {"per_recording": {"a": {"value": 1.25, "se": 0.4}}}}}
+    (t,) = _joint(C)
+    assert [r[0] for r in t.rows] == ["k", "g"] and [r[3] for r in t.rows] == ["no", "yes"]
+    assert t.rows[0][4] == "1.25 +- 0.4" and t.rows[0][5] == "-" and "stopped short" in t.caption
+    assert _joint({}) == []

@@ -28,13 +28,34 @@ def _parameters(C: dict) -> list:
     if rows:
         out.append(Table(["parameter", "published", "combined", "change"] + [f"on {r}" for r in recs]
                          + ["largest pairwise |z|"], rows,
-                         caption="Calibrated parameters (MAP, tolerances as priors) per fitting recording and combined "
-                                 "(inverse-variance mean, errors widened by the Birge ratio); two recordings agree "
-                                 "when |z| <= 3"))
+                         caption="Identified parameters (MAP, tolerances as priors): combined (one calibration on "
+                                 "all fitting recordings) and per fitting recording; two recordings agree when "
+                                 "|z| <= 3"))
     ni = C.get("not_identifiable", {})
     if ni:
         out.append(Table(["parameter", "why the data do not identify it"], [[k, v] for k, v in ni.items()]))
     return out
+
+
+def _joint(C: dict) -> list:
+    """The combined model: every shared parameter of the joint calibration, identified or not."""
+    J = C.get("joint_calibration")
+    if not J:
+        return []
+    agree = C.get("calibration_agreement", {})
+    recs = list(J.get("recordings", []))
+    rows = []
+    for q in J.get("parameters", []):
+        per = agree.get(q["key"], {}).get("per_recording", {})
+        rows.append([q["key"], _f(q["nominal"]), f"{q['value']:.5g} +- {q['se']:.2g}",
+                     "yes" if q["identified"] else "no"]
+                    + [f"{per[r]['value']:.4g} +- {per[r]['se']:.2g}" if r in per else "-" for r in recs])
+    short = " (stopped short: not converged, its cost far above the noise floor)" if J.get("stopped_short") else ""
+    cap = (f"The combined model: one calibration on all fitting recordings at once, each with its own session "
+           f"parameters, started from {J.get('start')}'s calibration; cost {_f(J.get('cost_over_noise_floor'), '.3g')} "
+           f"times its noise floor{short}. Every shared parameter enters the model at its estimate, identified "
+           f"or not; beside it each recording's own calibration")
+    return [Table(["parameter", "published", "combined", "identified"] + [f"on {r}" for r in recs], rows, caption=cap)]
 
 
 def _sessions(C: dict) -> list:
@@ -127,7 +148,7 @@ def rigs(ctx: Context) -> Section | None:
                    "recordings. " if unpaired else "")
                 + f"Residual on the held-out recordings {'not ' if C['unexplained'] else ''}within twice the "
                 "noise floor on every channel where the published model stood above it.",
-                *_parameters(C), *_sessions(C), *_errors(C), *_effects(C), *_checks(C))
+                *_joint(C), *_parameters(C), *_sessions(C), *_errors(C), *_effects(C), *_checks(C))
         for fig in C.get("figures", []):
             sec.add(Image(d / fig))
     return sec
