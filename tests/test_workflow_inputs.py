@@ -46,11 +46,19 @@ def test_a_subsystem_order_reruns_that_subsystem_and_its_descendants_only(smoke_
     assert not {rule for rule, _ in jobs} & {"simulate", "closeloop"}
 
 
+def _interruptible() -> None:
+    """Ctrl-C at its default in the child, as a terminal's shell starts a command. A test session
+    started in the background by a non-interactive shell (``pytest -q &``, a CI script) has
+    SIGINT ignored, and an ignored signal stays ignored in every child: snakemake and its job
+    would not see the Ctrl-C at all, the job would finish and snakemake exit 0."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(wd, log):
     """``snakemake`` on one long simulation in its own process group; returns once the job runs."""
     p = subprocess.Popen(SNAKEMAKE + ["results/sim/levitate.npz", "--cores", "1", "--configfile", "config.yaml",
                                       "long.yaml"], cwd=wd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                         text=True, start_new_session=True)
+                         text=True, start_new_session=True, preexec_fn=_interruptible)
     t0 = time.time()
     while time.time() - t0 < 300 and "simulated [" not in (log.read_text() if log.exists() else ""):
         time.sleep(0.5)
