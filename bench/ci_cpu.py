@@ -1,17 +1,17 @@
-"""CPU time of the test session, per test and in all (the CI time target, issue 25).
+"""CPU time of the test command, per test and in all (the CI time target).
 
     python bench/ci_cpu.py [--top 15] [PYTEST ARGS ...]     # default: the README's `pytest -q`
 
 Runs pytest (with its addopts: two pytest-xdist workers) with this module as a plugin: around
 each test's setup, call and teardown it reads the CPU time of the worker process and of its
 children that have ended (subprocesses: snakemake, the wheel's fresh environment, replay
-workers). Prints the session's wall time and load average at the start, the CPU time of the
+workers). Prints the run's wall time and load average at the start, the CPU time of the
 whole process tree, the tests' share of it (the rest: collection, the workers' start, the
 background smoke workflow), the costliest tests and the costliest files.
 
 The machine is shared: compare CPU time, not wall. With two cores and the tests packed on both,
-the session's wall time is about its CPU time over two; the target of 6 minutes for the README's
-test command with its install therefore needs the session under about 600 CPU s.
+the run's wall time is about its CPU time over two; the target of 6 minutes for the README's
+test command with its install therefore needs the run under about 600 CPU s.
 """
 from __future__ import annotations
 
