@@ -489,3 +489,8 @@ def test_data_implied_limits_narrow_the_bounds_of_a_calibration():
     assert p.upper == pytest.approx([0.05, 5.0]) and p.lower == pytest.approx([-0.5, -0.5])
     again = bounded(specs, {"a.gain": (None, 2.5), "a.zero": (-0.2, None)})
     assert again[0].upper == 2.1 and again[1].lower == -0.2
+    # an upper limit under the nominal value: five tolerances of room below it, but never past a
+    # lower limit the data imply nor a relative parameter's -90 %
+    low = calibration_problem(bounded(parameter_specs(cfg, {"a.gain": 0.1, "a.zero": 1.0}),
+                                      {"a.gain": (None, 1.0), "a.zero": (-1.5, -1.0)}), None)
+    assert low.upper == pytest.approx([-0.5, -1.0]) and low.lower == pytest.approx([-0.9, -1.5])

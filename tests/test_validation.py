@@ -70,6 +70,7 @@ def test_bisection_finds_threshold():
     assert res["amplitude_m"] == pytest.approx(1.234e-4, rel=2e-3)
     assert critical_amplitude_bisect(lambda a: False, 1e-5, 3e-4)["amplitude_m"] is None
 
+
 def test_bisection_below_its_lower_end_walks_down_instead_of_reporting_that_end():
     """A threshold under the bracket's lower end is found (the end is halved until the model
     levitates), not reported as the end itself; one under the whole search is None, flagged."""

@@ -137,9 +137,10 @@ def calibration_problem(specs: list[ParameterSpec], residual, seed0: int = 1, st
     for j, s in enumerate(specs):          # the limits the data imply, within the prior's
         if s.upper is not None:
             hi[j] = min(hi[j], s.theta_of(s.upper))
-        if s.lower is not None:
-            lo[j] = max(lo[j], s.theta_of(s.lower))
-        lo[j] = min(lo[j], hi[j] - 5 * sd[j])
+        # an upper limit below the nominal value keeps five tolerances of room under it, but
+        # never past a lower limit the data imply, nor a relative parameter's -90 %
+        floor = s.theta_of(s.lower) if s.lower is not None else (-0.9 if s.relative else -np.inf)
+        lo[j] = max(min(lo[j], hi[j] - 5 * sd[j]), floor)
     return Problem(names=tuple(s.key for s in specs), theta0=np.zeros(len(specs)), prior_sd=sd,
                    step=np.array([min(x.prior_sd, max_step_rel) if x.relative else x.prior_sd for x in specs]),
                    lower=lo, upper=hi,

@@ -347,10 +347,10 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
 
 
 def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: int = 700_000):
-    # sess: per recording, its session parameters' specs (their data-implied limits differ)
     r"""The :class:`~ssamb.closeloop.estimate.Problem` of one calibration over several recordings
     (:func:`joint_calibration`): the parameter vector is the shared parameters, then each
-    recording's own session parameters; the residual is the recordings' whitened residuals end to
+    recording's own session parameters (``sess``: per recording, the specs of its session
+    parameters, whose data-implied limits differ); the residual is the recordings' whitened residuals end to
     end (each part's noise groups kept), infeasible when any recording's replay is."""
     from .calibration import calibration_problem, overrides_of
     from .estimate import Problem
