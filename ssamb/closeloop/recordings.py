@@ -328,12 +328,7 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
         thetas = [np.clip([sp.theta_of(c[sp.key]) if sp.key in c else 0.0 for sp in specs],
                           [-np.inf if sp.lower is None else sp.theta_of(sp.lower) for sp in specs],
                           [np.inf if sp.upper is None else sp.theta_of(sp.upper) for sp in specs]) for c in cands]
-        score = []
-        for th in thetas:
-            rs = [ev(th, 650_500 + j) for j in range(est.centre_runs)]
-            ok = [r for r in rs if np.all(np.isfinite(r))]
-            a = np.mean(ok, axis=0) if ok else None
-            score.append((len(rs) - len(ok), float(a @ a) if a is not None else float("inf")))
+        score = [_drops_and_cost([ev(th, 650_500 + j) for j in range(est.centre_runs)]) for th in thetas]
         start = thetas[min(range(len(thetas)), key=lambda j: score[j])]
         cmp.calibrate_noise(overrides_of(specs, start), effects)
         cal = calibrate_model(cmp, specs, effects, EstimateSettings(**settings.estimate), settings.identifiable_ratio,
@@ -382,6 +377,15 @@ def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: i
     return Problem(names=tuple(s.key for s in shared), theta0=cat("theta0"), prior_sd=cat("prior_sd"),
                    step=cat("step"), lower=cat("lower"), upper=cat("upper"), evaluate=evaluate,
                    seed0=seed0, groups=groups, evaluate_many=evaluate_many), build
+
+
+def _drops_and_cost(res) -> tuple[int, float]:
+    """A candidate start's score from its replays' residuals: the number of infeasible ones (the
+    body dropped, NaN) and the cost of the others' mean (infinite when none floats); candidates
+    are ranked by drops first, a drop being no misfit a lower cost offsets."""
+    ok = [r for r in res if np.all(np.isfinite(r))]
+    a = np.mean(ok, axis=0) if ok else None
+    return len(res) - len(ok), float(a @ a) if a is not None else float("inf")
 
 
 def _session_start(cmp, shared: list, sess: list, theta_shared, phi0, effects: list, est) -> np.ndarray:
@@ -488,14 +492,12 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
             phis = [t[ns:] if k == j else _session_start(c, shared, sess[k], t[:ns], own_theta[k][ns:], effects, est)
                     for k, c in enumerate(cmps)]
             th = np.clip(np.concatenate([t[:ns]] + phis), prob.lower, prob.upper)
-            rs = prob.batch([(th, 600_000 + 500 + s) for s in range(est.centre_runs)])
-            ok = [r for r in rs if np.all(np.isfinite(r))]
-            a = np.mean(ok, axis=0) if 2 * len(ok) > len(rs) else None
+            drops, cost = _drops_and_cost(prob.batch([(th, 600_000 + 500 + s) for s in range(est.centre_runs)]))
             candidates.append(th)
-            costs.append(float(a @ a) if a is not None else float("inf"))
-            dropped.append(len(rs) - len(ok))
-            _log(progress, f"joint calibration: start at {names[j]}'s calibration: cost {costs[-1]:.4g} "
-                           f"({len(rs) - len(ok)} of {len(rs)} replays infeasible)")
+            costs.append(cost)
+            dropped.append(drops)
+            _log(progress, f"joint calibration: start at {names[j]}'s calibration: cost {cost:.4g} "
+                           f"({drops} of {est.centre_runs} replays infeasible)")
         best = min(range(len(costs)), key=lambda j: (dropped[j], costs[j]))
         prob.start = candidates[best] if np.isfinite(costs[best]) else None
         fit_ = map_fit(prob, est, (lambda m: _log(progress, "  joint calibration " + m)) if progress else None)
