@@ -228,22 +228,32 @@ def test_noise_floor_is_the_replays_spread_bounded_by_the_residual():
     assert d3["rms"] <= 1.05 * resid
 
 
-def test_session_parameters_are_refitted_on_each_held_out_recording():
+SESSION_CFG = {**CFG, "sensor": {"offset_m": 0.0},
+               "closeloop": {**CFG["closeloop"], "calibration": {"plant.b_gain": 0.1, "sensor.offset_m": 1e-3},
+                             "session": ["sensor.offset_m"]}}
+
+
+def _session_recordings():
+    def rec(seed, off):
+        return _data({"plant": {"a": 0.95, "b_gain": 1.08}, "sensor": {"offset_m": off}}, [], seed=seed), {}
+    return {"a": rec(31, 3e-4), "b": rec(32, -3e-4)}, {"c": rec(33, 2e-4)}
+
+
+@pytest.fixture(scope="module")
+def session_run():
+    from ssamb.closeloop.recordings import analyse_recordings
+
+    fit, hold = _session_recordings()
+    return analyse_recordings(fit, hold, SESSION_CFG, device=Toy())
+
+
+def test_session_parameters_are_refitted_on_each_held_out_recording(session_run):
     """A sensor offset that changes between recordings (+-0.3 mm) beside a plant gain that does
     not: declared a session parameter, the offset is neither combined nor required to agree, each
     held-out recording's is calibrated on its own first part, and the gain agrees and halves the
     held-out error of u. The joint calibration of both fitting recordings finds the gain with the
     error of twice the data and each recording's own offset."""
-    from ssamb.closeloop.recordings import analyse_recordings
-
-    cfg = {**CFG, "sensor": {"offset_m": 0.0},
-           "closeloop": {**CFG["closeloop"], "calibration": {"plant.b_gain": 0.1, "sensor.offset_m": 1e-3},
-                         "session": ["sensor.offset_m"]}}
-
-    def rec(seed, off):
-        return _data({"plant": {"a": 0.95, "b_gain": 1.08}, "sensor": {"offset_m": off}}, [], seed=seed), {}
-
-    out = analyse_recordings({"a": rec(31, 3e-4), "b": rec(32, -3e-4)}, {"c": rec(33, 2e-4)}, cfg, device=Toy())
+    out = session_run
     assert "sensor.offset_m" not in out["parameters"] and "sensor.offset_m" not in out["agreement"]
     s = out["session_parameters"]["sensor.offset_m"]
     assert set(s["fit"]) == {"a", "b"} and abs(s["hold"]["c"]["value"] - 2e-4) < 5e-5
@@ -252,8 +262,56 @@ def test_session_parameters_are_refitted_on_each_held_out_recording():
     # the combined model is one calibration on both fitting recordings (each with its own offset):
     # the gain within 3 standard errors, its error that of two equal recordings, 1/sqrt(2) of one's
     g = out["parameters"]["plant.b_gain"]
-    assert out["joint_calibration"]["recordings"] == ["a", "b"] and abs(g["value"] - 1.08) < 3 * g["se"]
+    assert sorted(out["joint_calibration"]["recordings"]) == ["a", "b"] and abs(g["value"] - 1.08) < 3 * g["se"]
     ratio = g["se"] / min(q["se"] for q in g["per_recording"].values())
     assert 0.6 < ratio < 0.85, ratio
     joint = s["fit_joint"]
     assert abs(joint["a"] - 3e-4) < 5e-6 and abs(joint["b"] + 3e-4) < 5e-6
+
+
+def _sorted_deep(obj):
+    """Every mapping's keys sorted, as the workflow's config is (workflow/rules/common.smk)."""
+    return {k: _sorted_deep(obj[k]) for k in sorted(obj)} if isinstance(obj, dict) else obj
+
+
+def test_the_result_does_not_depend_on_the_order_or_names_of_parameters_and_recordings(session_run):
+    """The same recordings and priors as above, but every config mapping's keys sorted the other
+    way round (the calibration and session keys reversed), the fitting recordings listed in the
+    other order and every recording renamed: the same numbers, bit for bit (the parameters are a
+    set, processed in sorted order; the recordings are processed in an order their data define)."""
+    from ssamb.closeloop.recordings import analyse_recordings
+
+    def reversed_deep(obj):
+        return {k: reversed_deep(obj[k]) for k in sorted(obj, reverse=True)} if isinstance(obj, dict) else obj
+
+    cfg = reversed_deep(SESSION_CFG)
+    assert list(cfg["closeloop"]["calibration"]) == ["sensor.offset_m", "plant.b_gain"]
+    fit, hold = _session_recordings()
+    out = analyse_recordings({"z": fit["b"], "y": fit["a"]}, {"x": hold["c"]}, cfg, device=Toy())
+    ref = session_run
+    rename = {"z": "b", "y": "a", "x": "c"}
+    for part in ("error_before", "error_after"):
+        assert out[part] == ref[part]
+    assert out["parameters"]["plant.b_gain"]["value"] == ref["parameters"]["plant.b_gain"]["value"]
+    assert out["parameters"]["plant.b_gain"]["se"] == ref["parameters"]["plant.b_gain"]["se"]
+    jo, jr = out["joint_calibration"], ref["joint_calibration"]
+    assert (jo["cost"], jo["start_costs"][jo["start"]]) == (jr["cost"], jr["start_costs"][jr["start"]])
+    assert rename[jo["start"]] == jr["start"] and [rename[n] for n in jo["recordings"]] == jr["recordings"]
+    s_o, s_r = out["session_parameters"]["sensor.offset_m"], ref["session_parameters"]["sensor.offset_m"]
+    assert {rename[n]: v for n, v in s_o["fit_joint"].items()} == s_r["fit_joint"]
+    assert s_o["hold"]["x"] == s_r["hold"]["c"]
+
+
+def test_calibration_keys_are_a_set_in_sorted_order():
+    """The priors reach the estimator sorted by key whatever order the config lists them in, and
+    so do the session keys."""
+    from ssamb.closeloop.calibration import parameter_specs
+    from ssamb.closeloop.settings import settings_from_config
+
+    cal = {"sensor.offset_m": 1e-3, "plant.b_gain": 0.1, "plant.a": 0.01}
+    cfg = {**SESSION_CFG, "closeloop": {**SESSION_CFG["closeloop"], "calibration": cal,
+                                        "session": ["sensor.offset_m", "plant.a"]}}
+    st = settings_from_config(cfg, Toy())
+    assert list(st.calibration) == sorted(cal) and st.session == ("plant.a", "sensor.offset_m")
+    assert [s.key for s in parameter_specs(cfg, cal)] == sorted(cal)
+    assert list(settings_from_config(CFG, Toy()).calibration) == ["plant.b_gain"]      # the device's priors

@@ -77,6 +77,10 @@ class ParameterSpec:
 def parameter_specs(cfg: Mapping, tolerances: Mapping[str, float]) -> list[ParameterSpec]:
     """The calibratable parameters: ``tolerances`` maps dotted keys to prior standard deviations.
 
+    The specs are in sorted key order: the parameters are a set, and the estimator's design
+    (:func:`ssamb.closeloop.estimate._pairs`: which perturbation pattern each parameter gets)
+    would otherwise depend on the order a mapping happens to list them in.
+
     Raises
     ------
     ssamb.config.ConfigError
@@ -85,7 +89,7 @@ def parameter_specs(cfg: Mapping, tolerances: Mapping[str, float]) -> list[Param
     from ..config import ConfigError
 
     out = []
-    for key, sd in tolerances.items():
+    for key, sd in sorted(tolerances.items()):
         try:
             v = _get(cfg, key)
         except KeyError:

@@ -45,7 +45,7 @@ import numpy as np
 from scipy import stats
 
 __all__ = ["combine_estimates", "combine_parameters", "combine_effects", "calibration_agreement",
-           "joint_calibration", "analyse_recordings", "run_recordings"]
+           "joint_calibration", "analyse_recordings", "run_recordings", "data_key", "in_data_order"]
 
 
 def combine_estimates(values, ses, max_z: float = 3.0) -> dict:
@@ -560,6 +560,40 @@ def analyse_recordings(fit: Mapping[str, tuple], hold: Mapping[str, tuple], cfg:
     return _analyse_recordings(fit, hold, cfg, device, workers, progress, reports)[0]
 
 
+def data_key(dev, arrays: Mapping) -> str:
+    """A recording's place in the order the recordings are processed in: the SHA-256 of its
+    logged channels (:attr:`ssamb.device.Device.channels`, float64), which its name or its
+    position on a command line do not change."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for c in dev.channels:
+        h.update(c.encode())
+        h.update(np.ascontiguousarray(np.asarray(arrays[c], dtype=np.float64)).tobytes())
+    return h.hexdigest()
+
+
+def in_data_order(dev, recordings: Mapping) -> dict:
+    r"""``recordings`` (name -> ``(arrays, meta)``) in the order their data define (:func:`data_key`).
+
+    The recordings given are a set. The joint calibration's parameter vector lists each
+    recording's session parameters in turn, and the estimator's design gives each position its
+    own perturbation pattern (:func:`ssamb.closeloop.estimate._pairs`); sums over recordings
+    (pooled errors, weighted means) round differently in another order. Processed in an order
+    the data define, the same files give the same numbers however they are named or listed (a
+    command line, a workflow whose config is sorted by name).
+    """
+    return dict(sorted(recordings.items(), key=lambda kv: data_key(dev, kv[1][0])))
+
+
+def _report_key(rep: Mapping) -> str:
+    """The order of a fitting recording known only by its analysis (no data given): a hash of
+    its final model and calibration, which its name does not change."""
+    from ..config import config_hash
+
+    return config_hash({k: rep.get(k) for k in ("final_model", "calibration")})
+
+
 def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
     from ..device import get_device
     from . import _analyse
@@ -568,10 +602,13 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
 
     dev = get_device(device)
     settings = settings_from_config(cfg, dev)
-    reps = dict(reports or {})
+    fit, hold = in_data_order(dev, fit), in_data_order(dev, hold)
+    given = dict(reports or {})
+    reps = {}
     for name, (arrays, meta) in fit.items():
-        if name not in reps:
-            reps[name] = _analyse(arrays, meta, cfg, source=name, progress=progress, workers=workers, device=dev)[0]
+        reps[name] = given[name] if name in given else \
+            _analyse(arrays, meta, cfg, source=name, progress=progress, workers=workers, device=dev)[0]
+    reps.update(sorted(((n, r) for n, r in given.items() if n not in fit), key=lambda x: _report_key(x[1])))
     session = tuple(settings.session)
     params, agree, not_ident = combine_parameters(reps, session=session)
     found = combine_effects(reps)

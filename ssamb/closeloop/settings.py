@@ -60,13 +60,15 @@ class Settings:
     calibration : dict
         Calibratable nominal parameters: dotted config key -> prior tolerance (standard
         deviation; relative to the nominal value, absolute in the key's unit when the nominal
-        value is 0). Empty: no calibration; None: the device's priors.
+        value is 0). Empty: no calibration; None: the device's priors. A set: in sorted key
+        order, whatever order the config lists them in (:func:`settings_from_config`), so the
+        estimate does not depend on it.
     session : tuple of str
         Calibrated parameters (keys of ``calibration``) that may change between recordings of one
         rig, like a sensor's alignment after the rig is touched. Over several recordings
         (:mod:`ssamb.closeloop.recordings`) they are neither combined nor required to agree; a
         held-out recording's are calibrated on its own fitting part, with everything else fixed,
-        and its errors are taken on the rest.
+        and its errors are taken on the rest. Sorted.
     calibration_step_rel : float
         Largest finite-difference step of a relative parameter (a wider tolerance reaches where
         the response is no longer linear).
@@ -192,8 +194,12 @@ def settings_from_config(cfg: Mapping | None, device=None) -> Settings:
                          f"closeloop.datasets (known: {', '.join(ds) or 'none'})")
     if kw.get("calibration") is None and device is not None:
         kw["calibration"] = dict(device.priors(cfg or {}))
+    # a set of parameters, not a sequence: the estimator sees them in one canonical order
+    # (sorted keys), whatever order a file or a canonicalised workflow config lists them in
+    if kw.get("calibration") is not None:
+        kw["calibration"] = dict(sorted(dict(kw["calibration"]).items()))
     if "session" in kw:
-        kw["session"] = tuple(kw["session"] or ())
+        kw["session"] = tuple(sorted(kw["session"] or ()))
     s = Settings(**kw)
     unknown = [k for k in s.session if k not in (s.calibration or {})]
     if unknown:
