@@ -148,6 +148,11 @@ class EffectModel:
         where the cost takes similar values (a delay just below a whole controller sample and
         the one as far above it), which a local fit cannot reach; each is scored after the fit and
         refitted from when it scores better (:func:`ssamb.closeloop.fit.fit_candidate`).
+    aliases : callable or None
+        ``theta -> list of theta``: distant points the data may not tell from a fitted ``theta``
+        (a delay one whole controller sample longer or shorter, on an axis whose sensor does not
+        see the PWM's ripple); scored like the mirrors, and those the fit's cost cannot be told
+        from widen the reported standard errors (:func:`ssamb.closeloop.fit.alias_sd`).
     """
 
     name: str
@@ -161,6 +166,7 @@ class EffectModel:
     grid: tuple = ()
     size_params: tuple | None = None
     mirrors: Callable | None = None
+    aliases: Callable | None = None
 
 
 class EffectModule(Protocol):

@@ -464,6 +464,43 @@ def test_a_delay_near_a_whole_sample_is_mirrored_across_it():
     assert _mirrors(np.array([0.1 * ts]), ts) == []
 
 
+def test_a_delay_has_aliases_one_whole_sample_away_on_each_axis():
+    """A fitted (x, y) delay of (2.1, 0.4) samples has the aliases (1.1, 0.4), (3.1, 0.4) and
+    (2.1, 1.4): none below zero."""
+    from ssamb.sim.effects.sensor_delay import _aliases
+
+    ts = 12e-6
+    out = np.array(_aliases(np.array([2.1 * ts, 0.4 * ts]), ts)) / ts
+    assert out == pytest.approx(np.array([[1.1, 0.4], [3.1, 0.4], [2.1, 1.4]]))
+
+
+@pytest.mark.parametrize("gap, expect_sd", [(0.0, 0.5), (1.0, 0.5), (40.0, 0.0)])
+def test_alias_sd_is_half_the_distance_to_a_point_as_plausible(gap, expect_sd):
+    """An effect whose cost has two minima one unit apart: equal ones (the data cannot tell them)
+    give a spread of half their distance, and so does one a standard deviation of the averaged
+    cost difference higher; one 40 standard deviations higher gives none. Costs are sums of squares of unit-variance
+    replay noise about each point's mean misfit, 200 entries, four replays each."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.fit import _one_replay_margin, alias_sd
+
+    n = 200
+    sd = _one_replay_margin(n, 4) / 2.0
+
+    def batch(points):
+        out = []
+        for theta, seed in points:
+            rng = np.random.default_rng(seed)
+            off = 0.0 if abs(theta[1] - 0.3) < 0.5 else np.sqrt(gap * sd / n)
+            out.append(rng.normal(size=n) + off)
+        return out
+    prob = SimpleNamespace(batch=batch, seed0=0)
+    model = SimpleNamespace(params=("d",), lower=np.array([0.0]), upper=np.array([5.0]), mirrors=None,
+                            aliases=lambda t: [t + 1.0])
+    fit = SimpleNamespace(theta=np.array([0.3, 0.0]))
+    assert alias_sd(prob, model, fit, 1) == pytest.approx([expect_sd])
+
+
 def test_one_replay_margin_is_two_sd_of_a_cost_difference_at_the_floor():
     """Two replays of one model against one data set (shared data noise, own model noise, unit
     variance each): the spread of the difference of their costs is sqrt(12 n)."""

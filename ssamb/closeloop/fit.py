@@ -98,6 +98,7 @@ class Candidate:
     reasons: list = field(default_factory=list)
     overrides: dict = field(default_factory=dict)
     n_free: int = 0
+    alias_sd: np.ndarray | None = None
 
     @property
     def passed(self) -> bool:
@@ -207,13 +208,15 @@ def _one_replay_costs(res) -> np.ndarray:
     return np.array([float(r @ r) if np.all(np.isfinite(r)) else np.inf for r in res])
 
 
-def _one_replay_margin(n: int) -> float:
+def _one_replay_margin(n: int, replays: int = 1) -> float:
     r"""Two standard deviations of the difference of two single replays' costs at the noise
     floor: with entries :math:`d + m_1` and :math:`d + m_2` (the data's noise :math:`d` shared,
     the replays' :math:`m_k` their own, each of unit variance), each of the ``n`` entries of
     :math:`\sum (m_1^2 - m_2^2) + 2 d (m_1 - m_2)` has variance 4 + 8, so :math:`2\sqrt{12 n}`.
-    A start or mirror must beat the other by more to be told apart from it by one replay each."""
-    return 2.0 * float(np.sqrt(12.0 * n))
+    A start or mirror must beat the other by more to be told apart from it by one replay each.
+    With the costs averaged over ``replays`` replays each (their own seeds), the variance is
+    divided by their number: :math:`2\sqrt{12 n / S}`."""
+    return 2.0 * float(np.sqrt(12.0 * n / replays))
 
 
 def _coarse_start(prob, model, k: int) -> np.ndarray:
@@ -231,15 +234,23 @@ def _coarse_start(prob, model, k: int) -> np.ndarray:
     return start
 
 
+def _alternatives(model, theta: np.ndarray, k: int) -> list:
+    """A fit's points (``k`` refitted parameters, then the effect's) with the effect at its mirrors
+    and aliases (:class:`ssamb.device.EffectModel`), within the effect's bounds."""
+    eff = theta[k:]
+    pts = [*(model.mirrors(eff) if model.mirrors else []), *(model.aliases(eff) if model.aliases else [])]
+    return [np.concatenate([theta[:k], np.clip(t, model.lower, model.upper)]) for t in pts]
+
+
 def _mirrored(cmp, base, model, fit, settings, seed0: int, step_rel: float, log):
-    r"""The fit, or the refit from a mirror of it across a kink of the cost
-    (:attr:`ssamb.device.EffectModel.mirrors`) when that one ends lower: every mirror and the fit
+    r"""The fit, or the refit from a mirror of it across a kink of the cost or an alias
+    (:attr:`ssamb.device.EffectModel.mirrors`, ``aliases``) when that one ends lower: each and the fit
     are replayed once with one shared seed, the best mirror is refitted from unless it scores
     clearly worse (by more than :func:`_coarse_start`'s margin: the two sides of a kink score
     alike, and one replay cannot tell them apart), and the refit is kept when its cost is lower."""
     prob, _ = _problem(cmp, base, model, seed0 + 77, step_rel)
     k = len(base.free)
-    alts = [np.concatenate([fit.theta[:k], np.clip(t, model.lower, model.upper)]) for t in model.mirrors(fit.theta[k:])]
+    alts = _alternatives(model, fit.theta, k)
     if not alts:
         return fit
     res = prob.batch([(t, prob.seed0 + 998) for t in [fit.theta] + alts])
@@ -253,6 +264,31 @@ def _mirrored(cmp, base, model, fit, settings, seed0: int, step_rel: float, log)
     prob.start = alts[best - 1]
     other = map_fit(prob, settings, log)
     return other if other.chi2 < fit.chi2 else fit
+
+
+def alias_sd(prob, model, fit, k: int, replays: int = 4) -> np.ndarray:
+    r"""Standard deviations, per effect parameter, of the fit's ambiguity between distant points.
+
+    The fit and its mirrors and aliases (:func:`_alternatives`) are replayed with ``replays``
+    seeds shared by all; an alternative whose mean cost the fit's does not beat by more than two
+    standard deviations of such a difference (:func:`_one_replay_margin`) is as plausible as the fit,
+    and a local standard error, from the curvature at one of them, says nothing of the other.
+    For each parameter the largest such distance :math:`d` counts as the spread of two equally
+    likely points, :math:`d/2`, added in quadrature to the reported standard error
+    (:func:`ssamb.closeloop.search.search`). Zero where no alternative is as plausible.
+    """
+    out = np.zeros(len(model.params))
+    alts = _alternatives(model, fit.theta, k)
+    if not alts:
+        return out
+    pts = [fit.theta] + alts
+    res = prob.batch([(t, prob.seed0 + 990 + j) for j in range(replays) for t in pts])
+    chi2 = _one_replay_costs(res).reshape(replays, len(pts)).mean(axis=0)
+    margin = _one_replay_margin(len(res[0]), replays)
+    for t, c in zip(alts, chi2[1:]):
+        if c < chi2[0] + margin:
+            out = np.maximum(out, np.abs(t[k:] - fit.theta[k:]) / 2.0)
+    return out
 
 
 def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateSettings, seed0: int,
@@ -271,8 +307,12 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
         if len(models) == 1 and model.grid:
             prob.start = _coarse_start(prob, model, k)
         fit = map_fit(prob, settings, log)
-        if len(models) == 1 and model.mirrors is not None:
+        spread = None
+        if len(models) == 1 and (model.mirrors is not None or model.aliases is not None):
             fit = _mirrored(cmp, base, model, fit, settings, seed0, step_rel, log)
+            spread = alias_sd(prob, model, fit, k)
+            if log is not None and np.any(spread > 0):
+                log(f"as plausible as the fit: points {dict(zip(model.params, (2 * spread).tolist()))} away")
         if not np.all(np.isfinite(fit.theta)):
             raise FloatingPointError("the estimate is not finite")
         ov, eff = build(fit.theta)
@@ -280,4 +320,4 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
         pred = cmp.prediction(ov, eff)
     except (FloatingPointError, np.linalg.LinAlgError, ValueError, ArithmeticError, InputError) as err:
         return Candidate(names, models, model, None, [], reasons=[f"the fit failed numerically ({err})"], n_free=k)
-    return Candidate(names, models, model, fit, effects, pred, overrides=ov, n_free=k)
+    return Candidate(names, models, model, fit, effects, pred, overrides=ov, n_free=k, alias_sd=spread)

@@ -437,7 +437,9 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
         for sl, m in zip(best.slices(), best.models):
             th = best.fit.theta[sl]
             se = best.fit.se[sl]
-            out.accepted.append({"name": m.name, "model": m, "theta": th, "se": se, "holdout": best.score,
+            spread = best.alias_sd if best.alias_sd is not None else np.zeros(len(th))
+            out.accepted.append({"name": m.name, "model": m, "theta": th, "se": np.hypot(se, spread),
+                                 "alias_sd": spread, "holdout": best.score,
                                  "evidence": ev[m.name], "round": rnd, "pred": best.pred,
                                  "without_signature": bool(info.get("fallback"))})
         base = base.after(best)
@@ -502,7 +504,8 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
     it moves to ``out.dropped`` with its values, and the final model goes without it."""
     kept, eff = [], []
     for a, m, lo, hi in zip(out.accepted, models, cuts[:-1], cuts[1:]):
-        a["theta"], a["se"] = fit.theta[lo:hi], fit.se_misfit[lo:hi]
+        # a local standard error and the spread between points the data cannot tell apart
+        a["theta"], a["se"] = fit.theta[lo:hi], np.hypot(fit.se_misfit[lo:hi], a["alias_sd"])
         w, k = size_statistic(fit.theta[lo:hi], fit.cov_misfit[lo:hi, lo:hi], list(m.params), m.size_params)
         a["joint_size_chi2"] = w
         if w <= float(stats.chi2.isf(alpha, k)):

@@ -109,7 +109,8 @@ def model(hints: dict, record, st) -> EffectModel | str:
                        np.zeros(len(axes)), np.full(len(axes), 2.4e-3),
                        lambda t: [{"name": NAME, "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
                        {"axes": axes}, _grid(th, hinted, 1.0 / float(record.fs_hz)),
-                       mirrors=functools.partial(_mirrors, ts=1.0 / float(record.fs_hz)))
+                       mirrors=functools.partial(_mirrors, ts=1.0 / float(record.fs_hz)),
+                       aliases=functools.partial(_aliases, ts=1.0 / float(record.fs_hz)))
 
 
 def _mirrors(theta: np.ndarray, ts: float, near: float = 0.25) -> list:
@@ -124,6 +125,23 @@ def _mirrors(theta: np.ndarray, ts: float, near: float = 0.25) -> list:
             t = np.array(theta, float)
             t[i] = 2 * k * ts - d
             out.append(t)
+    return out
+
+
+def _aliases(theta: np.ndarray, ts: float) -> list:
+    r"""The fitted delays one whole controller sample longer and shorter, one axis at a time
+    (not below zero). The interpolating delay line (:func:`_grid`) fixes the fraction of a
+    sample through the controller outputs near the Nyquist frequency, but the whole number of
+    samples only through the phase it adds at every line: on an axis whose sensor the PWM's
+    ripple does not reach (the x probe's bandwidth), one sample, a phase of 0.002 rad at 25 Hz,
+    can lie within the noise."""
+    out = []
+    for i, d in enumerate(np.asarray(theta, float)):
+        for s in (-ts, ts):
+            if d + s >= 0.0:
+                t = np.array(theta, float)
+                t[i] = d + s
+                out.append(t)
     return out
 
 
