@@ -103,7 +103,12 @@ def _known_failure(reason: str):
     return pytest.mark.xfail(strict=True, reason=reason)
 
 
-@pytest.mark.parametrize("axis", ["y", "both"])
+ROW2 = ("the delays are found (x 37.2 +- 6.0 us, its error spanning the whole-sample alias the x probe cannot tell; "
+        "y 36.92 +- 0.16 us), but the truth beats the final model on the held-out part (oracle z 8.0): the excited "
+        "lines of u_y and d_y keep a residual (chi-square 107 on 16, 81 on 22)")
+
+
+@pytest.mark.parametrize("axis", [pytest.param("y", marks=_known_failure(ROW2)), "both"])
 def test_rows2_3_sensor_delay_with_one_or_both_axes_excited(tmp_path, axis):
     """Rows 2 and 3: a 37 us sensor delay on both axes, a 100 um multisine on y only or on both
     axes: the delay is found on every axis it is reported on (the logged controller outputs at the
