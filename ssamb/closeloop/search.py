@@ -505,7 +505,7 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
     kept, eff = [], []
     for a, m, lo, hi in zip(out.accepted, models, cuts[:-1], cuts[1:]):
         # a local standard error and the spread between points the data cannot tell apart
-        a["theta"], a["se"] = fit.theta[lo:hi], np.hypot(fit.se_misfit[lo:hi], a["alias_sd"])
+        a["theta"], a["se"] = fit.theta[lo:hi], np.hypot(fit.se_misfit[lo:hi], a.get("alias_sd", 0.0))
         w, k = size_statistic(fit.theta[lo:hi], fit.cov_misfit[lo:hi, lo:hi], list(m.params), m.size_params)
         a["joint_size_chi2"] = w
         if w <= float(stats.chi2.isf(alpha, k)):
