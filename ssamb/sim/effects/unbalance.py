@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 from ...device import EffectModel
 from ._common import EffectError
@@ -47,6 +46,8 @@ def apply(e: dict, ov: dict, f_x, f_y, t, base_dir) -> None:
 
 
 def evidence(ft, alpha: float, st) -> dict:
+    from scipy import stats  # imported where needed: scipy.stats costs every job and workflow start ~0.7 CPU s
+
     best = None
     det = {"lines": []}
     for ln in ft.lines:
