@@ -315,3 +315,28 @@ def test_calibration_keys_are_a_set_in_sorted_order():
     assert list(st.calibration) == sorted(cal) and st.session == ("plant.a", "sensor.offset_m")
     assert [s.key for s in parameter_specs(cfg, cal)] == sorted(cal)
     assert list(settings_from_config(CFG, Toy()).calibration) == ["plant.b_gain"]      # the device's priors
+
+
+def test_the_joint_problem_names_every_parameter():
+    """The joint calibration's problem names each of its parameters, the recordings' session
+    parameters included (a widened design logs the parameters by name: with the shared ones
+    alone named it failed with an index error)."""
+    from ssamb.closeloop.calibration import ParameterSpec
+    from ssamb.closeloop.recordings import _joint_problem
+
+    class Cmp:
+        fit = SimpleNamespace(data=np.zeros(3), whitener=SimpleNamespace(residual=lambda a, b: np.zeros(3)))
+
+        def evaluator(self, part, build):
+            return lambda th, seed: np.zeros(3)
+
+        def evaluate_many(self, part, build):
+            return lambda tasks: [np.zeros(3) for _ in tasks]
+
+        def groups(self, part):
+            return [np.arange(3)]
+
+    shared = [ParameterSpec("a.k", 1.0, True, 0.1), ParameterSpec("a.m", 2.0, True, 0.1)]
+    sess = [[ParameterSpec("s.o", 0.0, False, 1e-3)], [ParameterSpec("s.o", 0.0, False, 1e-3)]]
+    prob, _ = _joint_problem([Cmp(), Cmp()], shared, sess, [], names=["x", "y"])
+    assert prob.names == ("a.k", "a.m", "x:s.o", "y:s.o") and len(prob.names) == len(prob.theta0)

@@ -131,6 +131,12 @@ class EstimateSettings:
         widen its steps, ``max_refresh``; ``short_iter`` 0: neither, as for a candidate's fit, a
         screen on a base that misfits by design); a fit that ends unconverged with it still
         holding has *stopped short* (:attr:`MapFit.stopped_short`), and says so.
+    design_seed : int
+        Which orthogonal array the design draws (:func:`_pairs`): 0, the first ``p`` columns of
+        the Hadamard matrix in the parameters' order; another value, columns, signs and rows drawn
+        with it. An arbitrary choice, like the order of the parameters was: an estimate that moves
+        with it has not converged, and its spread over a few values is the path's share of the
+        uncertainty (``bench/maglev_spread.py``).
     max_refresh : int
         A fit that stalls (trust region below ``min_trust``) while its cost is far above the floor
         halves its finite-difference steps and redoes the design at the same centre, at most this
@@ -160,6 +166,7 @@ class EstimateSettings:
     short_alpha: float = 1e-3
     short_iter: int = 8
     max_refresh: int = 2
+    design_seed: int = 0
 
 
 @dataclass
@@ -508,7 +515,8 @@ def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: 
 
     ``design: axes`` perturbs one parameter at a time (:math:`z_j = e_j`); ``design: signs``
     perturbs all at once (:math:`z_j \in \{\pm1\}^p`: the rows of an orthogonal array, ``n``
-    pairs for the smallest power of two ``n > p``, signs and order drawn per iteration): each run
+    pairs for the smallest power of two ``n > p``, signs and order drawn per iteration, the
+    columns too with a ``design_seed``): each run
     then informs every column of the Jacobian, and the regression's :math:`X^TX = 2nh^2 I` is
     ``n`` times larger per parameter than with the axes (the simultaneous-perturbation
     advantage) -- the noise of a weakly determined valley drops below its signal. A mirror pair
@@ -527,8 +535,10 @@ def _pairs(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs: 
         from scipy.linalg import hadamard
 
         n = 1 << int(np.ceil(np.log2(p + 1)))
-        rng = np.random.default_rng([abs(int(prob.seed0)), int(k)])
-        H = hadamard(n)[:, 1:p + 1] * rng.choice([-1.0, 1.0], size=p)
+        ds = int(s.design_seed)
+        rng = np.random.default_rng([abs(int(prob.seed0)), int(k)] + ([ds] if ds else []))
+        cols = 1 + (rng.permutation(n - 1)[:p] if ds else np.arange(p))
+        H = hadamard(n)[:, cols] * rng.choice([-1.0, 1.0], size=p)
         Z = np.concatenate([H[rng.permutation(n)] for _ in range(s.pair_runs)])
     else:
         Z = np.tile(np.eye(p), (s.pair_runs, 1))

@@ -341,11 +341,12 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
                                 "identified": k in found} for k in ov}
 
 
-def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: int = 700_000):
+def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: int = 700_000, names=None):
     r"""The :class:`~ssamb.closeloop.estimate.Problem` of one calibration over several recordings
     (:func:`joint_calibration`): the parameter vector is the shared parameters, then each
     recording's own session parameters (``sess``: per recording, the specs of its session
-    parameters, whose data-implied limits differ); the residual is the recordings' whitened residuals end to
+    parameters, whose data-implied limits differ; named ``recording:key`` with the recordings'
+    ``names``, default their positions); the residual is the recordings' whitened residuals end to
     end (each part's noise groups kept), infeasible when any recording's replay is."""
     from .calibration import calibration_problem, overrides_of
     from .estimate import Problem
@@ -374,7 +375,10 @@ def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: i
         res = [m(tasks) for m in manys]
         return [np.concatenate([np.asarray(r[j], float) for r in res]) for j in range(len(tasks))]
     cat = lambda a: np.concatenate([getattr(p, a) for p in parts])  # noqa: E731
-    return Problem(names=tuple(s.key for s in shared), theta0=cat("theta0"), prior_sd=cat("prior_sd"),
+    labels = list(names) if names is not None else [str(k) for k in range(len(sess))]
+    return Problem(names=tuple(s.key for s in shared) + tuple(f"{labels[k]}:{sp.key}" for k, sp_k in enumerate(sess)
+                                                           for sp in sp_k),
+                   theta0=cat("theta0"), prior_sd=cat("prior_sd"),
                    step=cat("step"), lower=cat("lower"), upper=cat("upper"), evaluate=evaluate,
                    seed0=seed0, groups=groups, evaluate_many=evaluate_many), build
 
@@ -478,7 +482,7 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
             own = reps[n].get("final_model") or {}
             c.calibrate_noise(own.get("overrides") or None, own.get("effects") or [])
             cmps.append(c)
-        prob, _ = _joint_problem(cmps, shared, sess, effects)
+        prob, _ = _joint_problem(cmps, shared, sess, effects, names=names)
         ns, nk = len(shared), len(sess0)
         own_theta = []
         for n in names:
@@ -505,7 +509,7 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
         for rp in replays:
             rp.close()
     sd = np.asarray(prob.prior_sd, float)
-    all_names = tuple(sp.key for sp in shared) + tuple(f"{n}:{sp.key}" for n in names for sp in sess0)
+    all_names = prob.names
     rel = tuple(sp.relative for sp in shared) + tuple(sp.relative for _ in names for sp in sess0)
     ident = identifiability(fit_.info, sd, all_names, settings.identifiable_ratio, cov=fit_.cov_misfit,
                             cov_noise=fit_.cov, relative=rel)
