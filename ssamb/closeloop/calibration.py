@@ -30,13 +30,14 @@ tolerance), the condition number, and the identified combinations.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
 
-from .estimate import EstimateSettings, MapFit, Problem, _inverse, map_fit
+from .estimate import EstimateSettings, MapFit, Problem, _inverse, best_fit
 
 __all__ = ["ParameterSpec", "parameter_specs", "bounded", "overrides_of", "calibration_problem", "identifiability",
            "findings", "Calibration", "calibrate_model"]
@@ -167,12 +168,16 @@ class Calibration:
         Parameters whose estimate lies more than ``conflict_z`` tolerances from nominal: the data
         contradict the stated tolerance (often an effect the model lacks, which the parameter
         absorbs; the effect search starts with them at their nominal value).
+    restarts : list of dict
+        With several fits (:func:`ssamb.closeloop.estimate.best_fit`), each one's score, the kept
+        one first; empty with one.
     """
 
     specs: list
     fit: MapFit | None
     ident: dict
     conflicts: list
+    restarts: list = dataclasses.field(default_factory=list)
 
     @property
     def theta(self) -> np.ndarray:
@@ -188,10 +193,12 @@ class Calibration:
 
 
 def calibrate_model(cmp, specs: list[ParameterSpec], effects: list, settings: EstimateSettings, ratio: float,
-                    conflict_z: float, seed0: int = 1, start=None, log=None, step_rel: float = 0.05) -> Calibration:
+                    conflict_z: float, seed0: int = 1, start=None, log=None, step_rel: float = 0.05,
+                    restarts: int = 1) -> Calibration:
     """MAP calibration of ``specs`` on the fitting part of ``cmp`` (a
     :class:`~ssamb.closeloop.comparison.Comparison`) with ``effects`` in the model
-    (finite-difference steps at most ``step_rel`` of a relative parameter's nominal value)."""
+    (finite-difference steps at most ``step_rel`` of a relative parameter's nominal value; the
+    best of ``restarts`` fits, :func:`ssamb.closeloop.estimate.best_fit`)."""
     if not specs:
         return Calibration(specs, None, {"per_parameter": {}, "rank": 0, "n_parameters": 0, "condition": 1.0,
                                          "singular_values": [], "combinations": []}, [])
@@ -201,12 +208,12 @@ def calibrate_model(cmp, specs: list[ParameterSpec], effects: list, settings: Es
     prob = calibration_problem(specs, None, seed0=seed0, start=start, groups=cmp.groups(cmp.fit), max_step_rel=step_rel)
     prob.evaluate = cmp.evaluator(cmp.fit, build)
     prob.evaluate_many = cmp.evaluate_many(cmp.fit, build)
-    fit = map_fit(prob, settings, log)
+    fit, scores = best_fit(prob, settings, restarts, log)
     sd = np.array([s.prior_sd for s in specs])
     ident = identifiability(fit.info, sd, tuple(s.key for s in specs), ratio, cov=fit.cov,
                             relative=tuple(s.relative for s in specs))
     conflicts = [s.key for s, t in zip(specs, fit.theta) if abs(t) > conflict_z * s.prior_sd]
-    return Calibration(specs, fit, ident, conflicts)
+    return Calibration(specs, fit, ident, conflicts, scores)
 
 
 def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio: float,

@@ -307,7 +307,7 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
     from .calibration import bounded, calibrate_model, findings, overrides_of, parameter_specs
     from .comparison import Comparison
     from .data import make_split
-    from .estimate import EstimateSettings
+    from .estimate import EstimateSettings, drops_and_cost
     from .replay import Replayer
 
     split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s, settings.min_holdout_s, name)
@@ -328,11 +328,11 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
         thetas = [np.clip([sp.theta_of(c[sp.key]) if sp.key in c else 0.0 for sp in specs],
                           [-np.inf if sp.lower is None else sp.theta_of(sp.lower) for sp in specs],
                           [np.inf if sp.upper is None else sp.theta_of(sp.upper) for sp in specs]) for c in cands]
-        score = [_drops_and_cost([ev(th, 650_500 + j) for j in range(est.centre_runs)]) for th in thetas]
+        score = [drops_and_cost([ev(th, 650_500 + j) for j in range(est.centre_runs)]) for th in thetas]
         start = thetas[min(range(len(thetas)), key=lambda j: score[j])]
         cmp.calibrate_noise(overrides_of(specs, start), effects)
         cal = calibrate_model(cmp, specs, effects, EstimateSettings(**settings.estimate), settings.identifiable_ratio,
-                              settings.conflict_z, start=start)
+                              settings.conflict_z, start=start, restarts=settings.calibration_restarts)
     finally:
         replay.close()
     found, _ = findings(specs, cal.theta, cal.ident)
@@ -381,15 +381,6 @@ def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: i
                    theta0=cat("theta0"), prior_sd=cat("prior_sd"),
                    step=cat("step"), lower=cat("lower"), upper=cat("upper"), evaluate=evaluate,
                    seed0=seed0, groups=groups, evaluate_many=evaluate_many), build
-
-
-def _drops_and_cost(res) -> tuple[int, float]:
-    """A candidate start's score from its replays' residuals: the number of infeasible ones (the
-    body dropped, NaN) and the cost of the others' mean (infinite when none floats); candidates
-    are ranked by drops first, a drop being no misfit a lower cost offsets."""
-    ok = [r for r in res if np.all(np.isfinite(r))]
-    a = np.mean(ok, axis=0) if ok else None
-    return len(res) - len(ok), float(a @ a) if a is not None else float("inf")
 
 
 def _session_start(cmp, shared: list, sess: list, theta_shared, phi0, effects: list, est) -> np.ndarray:
@@ -452,7 +443,7 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
     from .calibration import bounded, findings, identifiability, parameter_specs
     from .comparison import Comparison
     from .data import make_split
-    from .estimate import EstimateSettings, map_fit
+    from .estimate import EstimateSettings, best_fit, drops_and_cost
     from .replay import Replayer
     from .search import _log
 
@@ -496,7 +487,7 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
             phis = [t[ns:] if k == j else _session_start(c, shared, sess[k], t[:ns], own_theta[k][ns:], effects, est)
                     for k, c in enumerate(cmps)]
             th = np.clip(np.concatenate([t[:ns]] + phis), prob.lower, prob.upper)
-            drops, cost = _drops_and_cost(prob.batch([(th, 600_000 + 500 + s) for s in range(est.centre_runs)]))
+            drops, cost = drops_and_cost(prob.batch([(th, 600_000 + 500 + s) for s in range(est.centre_runs)]))
             candidates.append(th)
             costs.append(cost)
             dropped.append(drops)
@@ -504,7 +495,8 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
                            f"({drops} of {est.centre_runs} replays infeasible)")
         best = min(range(len(costs)), key=lambda j: (dropped[j], costs[j]))
         prob.start = candidates[best] if np.isfinite(costs[best]) else None
-        fit_ = map_fit(prob, est, (lambda m: _log(progress, "  joint calibration " + m)) if progress else None)
+        fit_, restarts = best_fit(prob, est, settings.calibration_restarts,
+                                  (lambda m: _log(progress, "  joint calibration " + m)) if progress else None)
     finally:
         for rp in replays:
             rp.close()
@@ -533,6 +525,8 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
              "stopped_short": bool(fit_.stopped_short), "cost": fit_.chi2, "n": fit_.n,
              "cost_over_noise_floor": fit_.chi2 / fit_.floor if fit_.floor > 0 else None,
              "simulations": int(fit_.evaluations) * len(names), "infeasible_replays": int(fit_.infeasible)}
+    if restarts:
+        block["restarts"] = restarts
     return {"overrides": ov, "parameters": params, "not_identifiable": not_ident, "session": sess_ov,
             "block": block}
 

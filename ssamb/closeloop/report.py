@@ -85,6 +85,8 @@ def _calibration(search, sigma, meas_v, hold, nominal_v, dev) -> dict:
              "stopped_short": bool(cal.fit.stopped_short) if cal.fit else False,
              "cost_over_noise_floor": float(cal.fit.floor_ratio) if cal.fit and cal.fit.floor > 0 else None,
              "infeasible_replays": int(cal.fit.infeasible) if cal.fit else 0}
+    if cal.restarts:
+        block["restarts"] = cal.restarts
     return block, params, not_ident
 
 

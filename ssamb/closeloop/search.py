@@ -560,7 +560,7 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     start = np.array([sp.theta_of(init[sp.key]) if sp.key in init else 0.0 for sp in specs]) if init else None
     cal = calibrate_model(cmp, specs, [], est, settings.identifiable_ratio, settings.conflict_z, start=start,
                           log=(lambda m: _log(progress, "  calibration " + m)) if progress else None,
-                          step_rel=settings.calibration_step_rel)
+                          step_rel=settings.calibration_step_rel, restarts=settings.calibration_restarts)
     out.calibration = cal
     _log(progress, f"calibration: {sum(d['identified'] for d in cal.ident['per_parameter'].values())} of {len(specs)} "
                    f"parameters identified; conflicts {cal.conflicts or 'none'} ({time.perf_counter() - t0:.1f} s)")

@@ -69,6 +69,11 @@ class Settings:
         (:mod:`ssamb.closeloop.recordings`) they are neither combined nor required to agree; a
         held-out recording's are calibrated on its own fitting part, with everything else fixed,
         and its errors are taken on the rest. Sorted.
+    calibration_restarts : int
+        Fits of each calibration (a recording's, the joint one, a held-out recording's session
+        parameters), each with its own design, of which the one whose replays drop the body
+        least and fit the fitting data best is kept (:func:`ssamb.closeloop.estimate.best_fit`):
+        where a fit's end depends on its path, the best of several is less so.
     calibration_step_rel : float
         Largest finite-difference step of a relative parameter (a wider tolerance reaches where
         the response is no longer linear).
@@ -141,6 +146,7 @@ class Settings:
     replay_seeds: int = 8
     calibration: dict | None = None
     session: tuple = ()
+    calibration_restarts: int = 1
     calibration_step_rel: float = 0.05
     identifiable_ratio: float = 1.0 / 3.0
     conflict_z: float = 3.0
@@ -211,6 +217,8 @@ def settings_from_config(cfg: Mapping | None, device=None) -> Settings:
             raise _err(f"config key 'closeloop.{name}': must be in (0, 0.5)")
     if int(s.replay_seeds) < 1:
         raise _err("config key 'closeloop.replay_seeds': must be >= 1")
+    if int(s.calibration_restarts) < 1:
+        raise _err("config key 'closeloop.calibration_restarts': must be >= 1")
     from .estimate import EstimateSettings
 
     known_est = {f.name for f in dataclasses.fields(EstimateSettings)}
