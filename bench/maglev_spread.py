@@ -86,9 +86,10 @@ def _fmt(r: dict) -> str:
     fit = ", ".join(f"{n}: {d['cost_over_floor']:.3g}{' (short)' if d['stopped_short'] else ''}"
                     for n, d in r["fitting"].items() if d["cost_over_floor"] is not None)
     j = r["joint"]
+    jc = "none" if j["cost_over_floor"] is None else f"{j['cost_over_floor']:.3g}"
     return (f"{json.dumps(r['variant'])}: held-out rms y {1e3 * a['y']:.3g} mm, i {1e3 * a['i']:.3g} mA, "
             f"u {a['u']:.3g} V; stop hit {', '.join(r['stop_hit']) or 'none'}; calibrations' cost / floor "
-            f"{fit}; joint from {j['start']}: {j['cost_over_floor'] if j['cost_over_floor'] is None else round(j['cost_over_floor'], 3)}"
+            f"{fit}; joint from {j['start']}: {jc}"
             f"{' (short)' if j['stopped_short'] else ''} ({r['wall_s']:.0f} s)")
 
 

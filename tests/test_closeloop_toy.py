@@ -340,3 +340,30 @@ def test_the_joint_problem_names_every_parameter():
     sess = [[ParameterSpec("s.o", 0.0, False, 1e-3)], [ParameterSpec("s.o", 0.0, False, 1e-3)]]
     prob, _ = _joint_problem([Cmp(), Cmp()], shared, sess, [], names=["x", "y"])
     assert prob.names == ("a.k", "a.m", "x:s.o", "y:s.o") and len(prob.names) == len(prob.theta0)
+
+
+def test_an_effect_with_which_every_joint_start_drops_the_body_is_contradicted(monkeypatch):
+    """An effect found in one fitting recording with which every start of the joint calibration is
+    infeasible (as if it dropped the body on another recording): the combined model is calibrated
+    without it, and the effect is listed as rejected, contradicted by the fitting recordings."""
+    from ssamb.closeloop import recordings
+
+    real = recordings.joint_calibration
+    calls = []
+
+    def joint(dev, fit, reps, cfg, settings, effects, *a):
+        calls.append(list(effects))
+        out = real(dev, fit, reps, cfg, settings, effects, *a)
+        if effects:
+            out["block"]["start"] = "nominal"
+        return out
+
+    monkeypatch.setattr(recordings, "joint_calibration", joint)
+    monkeypatch.setattr(recordings, "combine_effects", lambda reps: [
+        {"spec": {"name": "bias", "force_n": 0.5}, "found_in": ["a"], "uncertainty": {"force_n": 0.01}}])
+    fit, hold = _session_recordings()
+    out = recordings.analyse_recordings(fit, hold, SESSION_CFG, device=Toy())
+    assert calls == [[{"name": "bias", "force_n": 0.5}], []]
+    assert out["effects"] == [] and out["joint_calibration"]["start"] != "nominal"
+    (r,) = out["effects_rejected"]
+    assert r["name"] == "bias" and r["holdout_z"] is None and "drops the body" in r["contradicted"]

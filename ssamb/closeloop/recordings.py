@@ -27,7 +27,10 @@ own (:func:`ssamb.closeloop.analyse`: calibration, effects, joint refit, with it
 4. **held-out test of each effect**: the combined model with and without it, on the whitened
    features of each held-out recording's two parts (:func:`ssamb.closeloop.fit.holdout_score`'s
    statistic :math:`z`), combined over the :math:`K` parts as :math:`\sum z_k/\sqrt K`; an
-   effect stays in the findings only when this exceeds :math:`z_{1-\alpha}` (``alpha_accept``).
+   effect stays in the findings only when this exceeds :math:`z_{1-\alpha}` (``alpha_accept``). An
+   effect found in single recordings with which every start of the joint calibration drops the body
+   on a fitting recording is contradicted by them: the combined model is calibrated without it,
+   and it is listed among ``effects_rejected`` with the reason (``contradicted``).
 
 The result has the top-level keys of a single recording's ``closeloop.json`` (``effects``,
 ``unexplained``, ``error_before``/``error_after`` per channel, on the held-out recordings,
@@ -293,6 +296,9 @@ def _holdout_z(dev, name: str, arrays, meta, cfg, settings, overrides: dict, wit
     finally:
         replay.close()
 
+
+_CONTRADICTED = ("with the effects found in single fitting recordings in the model, every start of the joint "
+                 "calibration drops the body on a fitting recording: the combined model is calibrated without them")
 
 _SESSION_ERRORS_ON = ", after each one's own fitting part, on which its session parameters are calibrated"
 
@@ -615,6 +621,13 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
     sessions = {k: {"fit": {n: r["parameters"][k] for n, r in reps.items() if k in r.get("parameters", {})},
                     "hold": {}} for k in session}
     joint = joint_calibration(dev, fit, reps, cfg, settings, effects, workers, progress)
+    contradicted = []
+    if joint is not None and effects and joint["block"]["start"] == "nominal":
+        # with the effects found in single recordings every start drops the body on a fitting
+        # recording (and the published model does): those recordings contradict them
+        retry = joint_calibration(dev, fit, reps, cfg, settings, [], workers, progress)
+        if retry is not None and retry["block"]["start"] != "nominal":
+            contradicted, found, effects, joint = found, [], [], retry
     if joint is not None:                 # the combined model: every shared parameter, from all fitting data
         overrides = dict(joint["overrides"])
         params, not_ident = joint["parameters"], joint["not_identifiable"]
@@ -670,6 +683,10 @@ def _analyse_recordings(fit, hold, cfg, device, workers, progress, reports):
         entry = {"name": f["spec"]["name"], "params": {k: v for k, v in f["spec"].items() if k != "name"},
                  "uncertainty": f["uncertainty"], "found_in": f["found_in"], "holdout_z": z, "holdout_parts": zs}
         (kept if z > z_crit else rejected).append(entry)
+    for f in contradicted:
+        rejected.append({"name": f["spec"]["name"], "params": {k: v for k, v in f["spec"].items() if k != "name"},
+                         "uncertainty": f["uncertainty"], "found_in": f["found_in"], "holdout_z": None,
+                         "holdout_parts": [], "contradicted": _CONTRADICTED})
     for e in kept:
         e["error_reduction"] = None
     before = {c: _pool(v["before"]) for c, v in pooled.items()}
