@@ -269,16 +269,11 @@ def test_session_parameters_are_refitted_on_each_held_out_recording(session_run)
     assert abs(joint["a"] - 3e-4) < 5e-6 and abs(joint["b"] + 3e-4) < 5e-6
 
 
-def _sorted_deep(obj):
-    """Every mapping's keys sorted, as the workflow's config is (workflow/rules/common.smk)."""
-    return {k: _sorted_deep(obj[k]) for k in sorted(obj)} if isinstance(obj, dict) else obj
-
-
 def test_the_result_does_not_depend_on_the_order_or_names_of_parameters_and_recordings(session_run):
     """The same recordings and priors as above, but every config mapping's keys sorted the other
     way round (the calibration and session keys reversed), the fitting recordings listed in the
     other order and every recording renamed: the same numbers, bit for bit (the parameters are a
-    set, processed in sorted order; the recordings are processed in an order their data define)."""
+    set, processed in one canonical order; the recordings in an order their data define)."""
     from ssamb.closeloop.recordings import analyse_recordings
 
     def reversed_deep(obj):
@@ -302,18 +297,25 @@ def test_the_result_does_not_depend_on_the_order_or_names_of_parameters_and_reco
     assert s_o["hold"]["x"] == s_r["hold"]["c"]
 
 
-def test_calibration_keys_are_a_set_in_sorted_order():
-    """The priors reach the estimator sorted by key whatever order the config lists them in, and
-    so do the session keys."""
+def test_calibration_keys_are_a_set_in_the_devices_order():
+    """The priors reach the estimator in one canonical order whatever order the config lists them
+    in: the device's own order of its calibratable parameters, then the others sorted; the
+    session keys in the same order."""
     from ssamb.closeloop.calibration import parameter_specs
     from ssamb.closeloop.settings import settings_from_config
+
+    class OwnConfig(Toy):
+        def default_config(self):
+            return CFG
 
     cal = {"sensor.offset_m": 1e-3, "plant.b_gain": 0.1, "plant.a": 0.01}
     cfg = {**SESSION_CFG, "closeloop": {**SESSION_CFG["closeloop"], "calibration": cal,
                                         "session": ["sensor.offset_m", "plant.a"]}}
-    st = settings_from_config(cfg, Toy())
-    assert list(st.calibration) == sorted(cal) and st.session == ("plant.a", "sensor.offset_m")
-    assert [s.key for s in parameter_specs(cfg, cal)] == sorted(cal)
+    st = settings_from_config(cfg, OwnConfig())
+    assert list(st.calibration) == ["plant.b_gain", "plant.a", "sensor.offset_m"]
+    assert st.session == ("plant.a", "sensor.offset_m")
+    assert [s.key for s in parameter_specs(cfg, st.calibration)] == list(st.calibration)
+    assert list(settings_from_config(cfg, Toy()).calibration) == sorted(cal)   # no default config: sorted
     assert list(settings_from_config(CFG, Toy()).calibration) == ["plant.b_gain"]      # the device's priors
 
 

@@ -78,9 +78,9 @@ class ParameterSpec:
 def parameter_specs(cfg: Mapping, tolerances: Mapping[str, float]) -> list[ParameterSpec]:
     """The calibratable parameters: ``tolerances`` maps dotted keys to prior standard deviations.
 
-    The specs are in sorted key order: the parameters are a set, and the estimator's design
-    (:func:`ssamb.closeloop.estimate._pairs`: which perturbation pattern each parameter gets)
-    would otherwise depend on the order a mapping happens to list them in.
+    The specs are in the order of ``tolerances``; :func:`ssamb.closeloop.settings.settings_from_config`
+    gives the canonical one (:func:`ssamb.closeloop.settings.canonical_order`: the estimator's
+    design gives each position its own perturbation pattern).
 
     Raises
     ------
@@ -90,7 +90,7 @@ def parameter_specs(cfg: Mapping, tolerances: Mapping[str, float]) -> list[Param
     from ..config import ConfigError
 
     out = []
-    for key, sd in sorted(tolerances.items()):
+    for key, sd in tolerances.items():
         try:
             v = _get(cfg, key)
         except KeyError:

@@ -318,7 +318,7 @@ def _session_fit(dev, name: str, rec, cfg, overrides: dict, effects: list, setti
 
     split = make_split(rec, settings.fit_fraction, settings.discard_s, settings.min_fit_s, settings.min_holdout_s, name)
     base = apply_overrides(cfg, overrides) if overrides else cfg
-    specs = bounded(parameter_specs(base, {k: settings.calibration[k] for k in settings.session}),
+    specs = bounded(parameter_specs(base, {k: v for k, v in settings.calibration.items() if k in settings.session}),
                     dev.calibration_bounds(rec, base))
     replay = Replayer(base, rec, workers=workers)
     try:

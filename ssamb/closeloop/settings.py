@@ -10,7 +10,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Mapping
 
-__all__ = ["Settings", "settings_from_config"]
+__all__ = ["Settings", "settings_from_config", "canonical_order"]
 
 
 @dataclass(frozen=True)
@@ -60,15 +60,15 @@ class Settings:
     calibration : dict
         Calibratable nominal parameters: dotted config key -> prior tolerance (standard
         deviation; relative to the nominal value, absolute in the key's unit when the nominal
-        value is 0). Empty: no calibration; None: the device's priors. A set: in sorted key
-        order, whatever order the config lists them in (:func:`settings_from_config`), so the
+        value is 0). Empty: no calibration; None: the device's priors. A set: in the canonical
+        order (:func:`canonical_order`), whatever order the config lists them in, so the
         estimate does not depend on it.
     session : tuple of str
         Calibrated parameters (keys of ``calibration``) that may change between recordings of one
         rig, like a sensor's alignment after the rig is touched. Over several recordings
         (:mod:`ssamb.closeloop.recordings`) they are neither combined nor required to agree; a
         held-out recording's are calibrated on its own fitting part, with everything else fixed,
-        and its errors are taken on the rest. Sorted.
+        and its errors are taken on the rest. In the order of ``calibration``.
     calibration_restarts : int
         Fits of each calibration (a recording's, the joint one, a held-out recording's session
         parameters), each with its own design, of which the one whose replays drop the body
@@ -170,6 +170,26 @@ class Settings:
 _WORKFLOW_KEYS = ("datasets", "default_dataset", "rigs")
 
 
+def canonical_order(calibration: Mapping, device=None) -> dict:
+    """``calibration`` (dotted key -> tolerance) in the canonical order of its keys: the device's
+    own order of its calibratable parameters (:meth:`ssamb.device.Device.priors` of its default
+    configuration), then any other keys sorted.
+
+    The parameters are a set, but the estimator's design gives each position its own
+    perturbation pattern (:func:`ssamb.closeloop.estimate._pairs`), so their order is one of the
+    arbitrary choices a result may depend on; fixed by the device, it is the same whatever order
+    a configuration file, or a workflow that sorts every mapping, lists them in.
+    """
+    own: list = []
+    if device is not None:
+        try:
+            own = list(device.priors(device.default_config()))
+        except NotImplementedError:          # a device without a default configuration of its own
+            own = []
+    rank = {k: i for i, k in enumerate(own)}
+    return dict(sorted(dict(calibration).items(), key=lambda kv: (rank.get(kv[0], len(rank)), kv[0])))
+
+
 def _err(msg: str):
     from ..config import ConfigError
 
@@ -200,12 +220,13 @@ def settings_from_config(cfg: Mapping | None, device=None) -> Settings:
                          f"closeloop.datasets (known: {', '.join(ds) or 'none'})")
     if kw.get("calibration") is None and device is not None:
         kw["calibration"] = dict(device.priors(cfg or {}))
-    # a set of parameters, not a sequence: the estimator sees them in one canonical order
-    # (sorted keys), whatever order a file or a canonicalised workflow config lists them in
+    # a set of parameters, not a sequence: the estimator sees them in one canonical order,
+    # whatever order a file or a canonicalised (sorted) workflow config lists them in
     if kw.get("calibration") is not None:
-        kw["calibration"] = dict(sorted(dict(kw["calibration"]).items()))
+        kw["calibration"] = canonical_order(kw["calibration"], device)
     if "session" in kw:
-        kw["session"] = tuple(sorted(kw["session"] or ()))
+        kw["session"] = tuple(k for k in (kw.get("calibration") or {}) if k in set(kw["session"] or ())) + \
+            tuple(sorted(set(kw["session"] or ()) - set(kw.get("calibration") or {})))
     s = Settings(**kw)
     unknown = [k for k in s.session if k not in (s.calibration or {})]
     if unknown:
