@@ -272,8 +272,10 @@ def test_session_parameters_are_refitted_on_each_held_out_recording(session_run)
 def test_the_result_does_not_depend_on_the_order_or_names_of_parameters_and_recordings(session_run):
     """The same recordings and priors as above, but every config mapping's keys sorted the other
     way round (the calibration and session keys reversed), the fitting recordings listed in the
-    other order and every recording renamed: the same numbers, bit for bit (the parameters are a
-    set, processed in one canonical order; the recordings in an order their data define)."""
+    other order and every recording renamed, and the fitting recordings analysed one by one first
+    (as the workflow's jobs do): the same numbers, bit for bit (the parameters are a set,
+    processed in one canonical order; the recordings in an order their data define)."""
+    from ssamb.closeloop import analyse
     from ssamb.closeloop.recordings import analyse_recordings
 
     def reversed_deep(obj):
@@ -282,7 +284,9 @@ def test_the_result_does_not_depend_on_the_order_or_names_of_parameters_and_reco
     cfg = reversed_deep(SESSION_CFG)
     assert list(cfg["closeloop"]["calibration"]) == ["sensor.offset_m", "plant.b_gain"]
     fit, hold = _session_recordings()
-    out = analyse_recordings({"z": fit["b"], "y": fit["a"]}, {"x": hold["c"]}, cfg, device=Toy())
+    mine = {"z": fit["b"], "y": fit["a"]}
+    reports = {n: analyse(a, m, cfg, device=Toy()) for n, (a, m) in mine.items()}
+    out = analyse_recordings(mine, {"x": hold["c"]}, cfg, device=Toy(), reports=reports)
     ref = session_run
     rename = {"z": "b", "y": "a", "x": "c"}
     for part in ("error_before", "error_after"):
