@@ -94,7 +94,8 @@ def _effects(C: dict) -> list:
     rows = [[e["name"], ", ".join(f"{k} = {_f(v)}" for k, v in e["params"].items()), ", ".join(e["found_in"]),
              _f(e["holdout_z"], ".2f"), "kept"] for e in C.get("effects", [])]
     rows += [[e["name"], ", ".join(f"{k} = {_f(v)}" for k, v in e["params"].items()), ", ".join(e["found_in"]),
-              _f(e["holdout_z"], ".2f"), "rejected: not significant on the held-out recordings"]
+              _f(e["holdout_z"], ".2f"),
+              "rejected: " + (e.get("contradicted") or "not significant on the held-out recordings")]
              for e in C.get("effects_rejected", [])]
     out = []
     if rows:
