@@ -59,15 +59,21 @@ def _checksums(results) -> dict:
     return {str(f.relative_to(results)): hashlib.sha256(f.read_bytes()).hexdigest() for f in files}
 
 
-#: jobs run again (``--forcerun``) in a copy of the finished smoke workflow, and what they feed
+#: the summary, run again first and on its own: it reads every stage, so in a run after the
+#: others it would rerun each stage's every job
+SUMMARY = "results/summary.json"
+#: jobs run again (``--forcerun``) in a copy of the finished smoke workflow: a simulation, an
+#: identification, the close-the-loop analyses, the ceiling, the paper's way's selection
 FORCED = ("results/sim/levitate.npz", "results/ident/selfsensing.npz", "results/closeloop/rig_demo/closeloop.json",
-          "results/rigs/recordings/maglev1d/escalon/closeloop.json", "results/ceiling/fig4.json")
-DOWNSTREAM = ("results/summary.json", "results/rigs/maglev1d/closeloop.json")
-#: the paper's way's selection, run again on its own (what it feeds is the paper's whole chain)
-SELECT = "results/runs/paper/select/plant.npz"
-#: the jobs that run: every rule that writes results (JSON, NPZ) at least once
+          "results/rigs/recordings/maglev1d/escalon/closeloop.json", "results/ceiling/fig4.json",
+          "results/runs/paper/select/plant.npz")
+#: what is asked for downstream of them: one job of each rule the identification feeds (the
+#: assembly, one uncertainty, one mu case, the baseline, the validation) and the rig's combination
+DOWNSTREAM = ("results/mu/selfsensing.json", "results/mu/baseline.json", "results/validation/sweep.json",
+              "results/rigs/maglev1d/closeloop.json")
+#: the jobs that run: every rule that writes results (JSON, NPZ), once
 RERUN = sorted(["simulate", "identify", "closeloop", "closeloop_recording", "ceiling", "assemble", "baseline",
-                "validate", "closeloop_rig", "summary", "select"] + ["uncertainty"] * 3 + ["mu"] * 4)
+                "validate", "closeloop_rig", "summary", "select", "uncertainty", "mu"])
 
 
 def _ran(r) -> list[str]:
@@ -77,20 +83,20 @@ def _ran(r) -> list[str]:
 
 @pytest.mark.slow
 def test_every_rule_rewrites_the_same_bytes(smoke_workdir, tmp_path):
-    """Byte-reproducible results: in a copy of the finished smoke workflow, jobs of every rule that
-    writes results run again (Snakemake deletes a job's outputs first) on the inputs the first
-    run made: a simulation, an identification and what depends on it in the default run, the
-    close-the-loop analyses, the paper's way's selection. Every JSON and NPZ file, the rewritten
-    ones among them, is byte-identical to the first run's. A job's bytes depend on its inputs
-    and params alone, so a clean run of the whole workflow repeats them job by job (the jobs not
-    repeated run the same rules on other data)."""
+    """Byte-reproducible results: in a copy of the finished smoke workflow, one job of every rule
+    that writes results runs again (Snakemake deletes a job's outputs first) on the inputs the
+    first run made: the summary, then a simulation, an identification and one job of each stage
+    it feeds in the default run, the close-the-loop analyses, the ceiling, the paper's way's
+    selection. Every JSON and NPZ file, the rewritten ones among them, is byte-identical to the
+    first run's. A job's bytes depend on its inputs and params alone, so a clean run of the whole
+    workflow repeats them job by job (the jobs not repeated run the same rules on other data)."""
     wd = tmp_path / "again"
     shutil.copytree(smoke_workdir, wd, symlinks=True, ignore=shutil.ignore_patterns("snakemake.*"))
     t0 = time.time_ns()
-    ran = _ran(run_snakemake(wd, *DOWNSTREAM, *FORCED, "--forcerun", *FORCED, "--cores", "2", *SMOKE_ARGS))
-    ran += _ran(run_snakemake(wd, SELECT, "--forcerun", SELECT, "--cores", "2", *SMOKE_ARGS))
+    ran = _ran(run_snakemake(wd, SUMMARY, "--forcerun", SUMMARY, "--cores", "2", *SMOKE_ARGS))
+    ran += _ran(run_snakemake(wd, *DOWNSTREAM, *FORCED, "--forcerun", *FORCED, "--cores", "2", *SMOKE_ARGS))
     assert sorted(ran) == RERUN, sorted(ran)
-    assert all((wd / f).stat().st_mtime_ns > t0 for f in FORCED + DOWNSTREAM + (SELECT,))  # rewritten
+    assert all((wd / f).stat().st_mtime_ns > t0 for f in FORCED + DOWNSTREAM + (SUMMARY,))  # rewritten
     first, again = _checksums(smoke_workdir / "results"), _checksums(wd / "results")
     assert first.keys() == again.keys() and len(first) > 40
     differ = sorted(k for k in first if first[k] != again[k])
