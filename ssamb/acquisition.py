@@ -44,6 +44,7 @@ deterministic.
 """
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 from typing import Any, Mapping
@@ -133,17 +134,26 @@ def apply_acquisition(channels: Mapping[str, np.ndarray], acquisition: Mapping |
         :math:`y = H(z)\\,x` from the steady state of :math:`x_0`), every other entry the
         caller's own object, unchanged.
     """
-    from scipy.signal import butter, sosfilt, sosfilt_zi
+    from scipy.signal import sosfilt
 
     spec = validate_acquisition(acquisition, "apply_acquisition", fs_hz)
     out = dict(channels)
     if not spec:
         return out
-    sos = butter(spec["order"], spec["antialias_hz"], btype="lowpass", fs=float(fs_hz), output="sos")
-    zi_unit = sosfilt_zi(sos)
+    sos, zi_unit = _design(spec["order"], spec["antialias_hz"], float(fs_hz))
     for name in ANALOG_CHANNELS:
         if name not in channels:
             continue
         x = np.asarray(channels[name], dtype=float)
         out[name] = sosfilt(sos, x, zi=zi_unit * x[0])[0] if x.size else x.copy()
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _design(order: int, antialias_hz: float, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The Butterworth low-pass's second-order sections and its unit-step steady state (shared
+    between calls: read only)."""
+    from scipy.signal import butter, sosfilt_zi
+
+    sos = butter(order, antialias_hz, btype="lowpass", fs=fs_hz, output="sos")
+    return sos, sosfilt_zi(sos)

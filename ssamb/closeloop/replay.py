@@ -50,6 +50,7 @@ class Replayer:
     cache_size: int = 32
     workers: int = 1
     _cache: dict = field(default_factory=dict, repr=False)
+    _cfgs: dict = field(default_factory=dict, repr=False)
     _pool: tuple | None = field(default=None, repr=False)
     _finalizer: object = field(default=None, repr=False)
 
@@ -145,7 +146,13 @@ class Replayer:
             out = self._cache.pop(key)          # most recently used last
             self._cache[key] = out
             return out
-        cfg = apply_overrides(self.cfg, ov) if ov else self.cfg
+        cfg = self.cfg
+        if ov:                    # one configuration per parameter set, shared by its seeds (never written)
+            ck = json.dumps(ov, sort_keys=True)
+            cfg = self._cfgs.pop(ck, None) or apply_overrides(self.cfg, ov)
+            self._cfgs[ck] = cfg
+            while len(self._cfgs) > 8:
+                self._cfgs.pop(next(iter(self._cfgs)))
         t0 = time.perf_counter()
         rep = self.record.device.replay(cfg, self.record, effects, n, seed)
         self.wall_s += time.perf_counter() - t0

@@ -11,6 +11,7 @@ format (docs/formats.md) plus the true states (``x_true``, ``y_true``, ``b_*_t``
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import sys
 import time
@@ -144,13 +145,34 @@ def converter_noise(par: AMBParams, n: int, seed_seq: np.random.SeedSequence | i
     n_per = int(n / par.fs_hz * par.f_pwm_hz) + 4
     if sp == 0.0 and si == 0.0:
         return np.zeros((6, n)), np.zeros((4, n_per))
-    rng = np.random.default_rng(seed_seq)
-    out = standard_normal(rng, (6, n))
-    out[:2] *= sp
-    out[2:] *= si
-    npi = standard_normal(rng, (4, n_per))
-    npi *= si
-    return out, npi
+    raw, raw_pi = _standard_noise(seed_seq, n, n_per)
+    out = np.empty_like(raw)
+    np.multiply(raw[:2], sp, out=out[:2])
+    np.multiply(raw[2:], si, out=out[2:])
+    return out, raw_pi * si
+
+
+#: standard normal draws of recent seeds (replays of one model with several seeds repeat them),
+#: kept up to this many bytes
+_NOISE_BYTES = 96 * 2**20
+_NOISE: dict = {}
+
+
+def _standard_noise(seed_seq: np.random.SeedSequence | int, n: int, n_per: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit-variance draws ``(6 x n, 4 x n_per)`` of ``default_rng(seed_seq)`` in that order
+    (the caller scales copies: the cached arrays are never written)."""
+    if isinstance(seed_seq, np.random.SeedSequence):
+        key = (repr(seed_seq.entropy), tuple(seed_seq.spawn_key), seed_seq.pool_size, n, n_per)
+    else:
+        key = (repr(int(seed_seq)), None, None, n, n_per)
+    hit = _NOISE.pop(key, None)
+    if hit is None:
+        rng = np.random.default_rng(seed_seq)
+        hit = (standard_normal(rng, (6, n)), standard_normal(rng, (4, n_per)))
+    _NOISE[key] = hit
+    while len(_NOISE) > 1 and sum(a.nbytes + b.nbytes for a, b in _NOISE.values()) > _NOISE_BYTES:
+        _NOISE.pop(next(iter(_NOISE)))
+    return hit
 
 
 def _seed_sequence(cfg: Mapping, seed: int, exc: Mapping, key: int = 0) -> np.random.SeedSequence:
@@ -207,6 +229,13 @@ def calibrate_selfsensing(par: AMBParams, packed: np.ndarray, positions_m: Itera
     """
     qtab = network_tables(par) if qtab is None else qtab
     positions = np.asarray(list(positions_m), float)
+    key = None
+    if seed_seqs is None:      # noise-free: a function of its inputs alone, memoised on them
+        key = (repr(par), packed.tobytes(), qtab.shape, hashlib.blake2b(np.ascontiguousarray(qtab)).digest(),
+               positions.tobytes(), float(settle_s), int(average_samples))
+        if key in _CALIBRATIONS:
+            _CALIBRATIONS[key] = _CALIBRATIONS.pop(key)     # most recently used last
+            return _copy_calibration(_CALIBRATIONS[key])
     seeds = list(seed_seqs) if seed_seqs is not None else [None] * len(positions)
     n = int(round(settle_s * par.fs_hz)) + average_samples
     raws = []
@@ -222,8 +251,22 @@ def calibrate_selfsensing(par: AMBParams, packed: np.ndarray, positions_m: Itera
     raws = np.asarray(raws)
     gain, offset = np.polyfit(raws, positions, 1)
     resid = positions - (gain * raws + offset)
-    return {"gain": float(gain), "offset_m": float(offset), "positions_m": positions.tolist(),
-            "raw_m": raws.tolist(), "max_residual_m": float(np.max(np.abs(resid)))}
+    calib = {"gain": float(gain), "offset_m": float(offset), "positions_m": positions.tolist(),
+             "raw_m": raws.tolist(), "max_residual_m": float(np.max(np.abs(resid)))}
+    if key is not None:
+        _CALIBRATIONS[key] = _copy_calibration(calib)
+        while len(_CALIBRATIONS) > _CALIBRATIONS_KEPT:
+            _CALIBRATIONS.pop(next(iter(_CALIBRATIONS)))
+    return calib
+
+
+#: noise-free calibrations kept (a close-the-loop analysis replays one model with several seeds)
+_CALIBRATIONS: dict = {}
+_CALIBRATIONS_KEPT = 64
+
+
+def _copy_calibration(calib: dict) -> dict:
+    return {k: list(v) if isinstance(v, list) else v for k, v in calib.items()}
 
 
 def excitation_arrays(spec: Mapping, fs_hz: float, duration_s: float | None, seed: int):

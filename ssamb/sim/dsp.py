@@ -41,6 +41,7 @@ current step the model cannot explain), counted in the state ``D_REJ``.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numba as nb
@@ -77,11 +78,13 @@ def selfsensing_state(y0: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return s, np.zeros((3, 2 * SS_RING))
 
 
+@functools.lru_cache(maxsize=16)
 def trend_basis(window: int, order: int) -> np.ndarray:
     """Discrete orthonormal polynomial basis (order+1 rows, ``window`` columns) for the DCM trend.
 
     Rows span the polynomials of degree <= ``order`` on the sample indices of the window and
     are orthonormal (QR of the Vandermonde matrix), so projecting them out is a few dot products.
+    The array is shared between calls (memoised): read it, never write it.
     """
     tn = np.linspace(-1.0, 1.0, window)
     v = np.vander(tn, order + 1, increasing=True)
