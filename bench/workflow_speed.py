@@ -97,6 +97,8 @@ def main() -> None:
     for c in args.configfile:
         shutil.copy(ROOT / c, wd / Path(c).name)
         cfgs.append(Path(c).name)
+        for extra in (ROOT / c).parent.glob("maglev1d*.yaml"):   # a device config the file names beside it
+            shutil.copy(extra, wd / extra.name)
     t = time.time()
     _run(wd, configfiles=tuple(cfgs))
     _table(_benchmarks(wd / "results", t))

@@ -101,6 +101,7 @@ def copy_repo(dst: Path) -> None:
     for d in ("workflow", "resources"):
         shutil.copytree(ROOT / d, dst / d, ignore=shutil.ignore_patterns("__pycache__", ".snakemake"))
     shutil.copy(ROOT / "tests" / "data" / "smoke_config.yaml", dst / "smoke.yaml")
+    shutil.copy(ROOT / "tests" / "data" / "maglev1d_smoke.yaml", dst / "maglev1d_smoke.yaml")
     rig = smoke_rig()
     for f in (rig, rig.with_suffix(".json")):
         shutil.copy(f, dst / "resources" / f.name)
@@ -190,6 +191,20 @@ _STARTED: list[subprocess.Popen] = []
 def pytest_configure(config):
     global _CONFIG
     _CONFIG = config
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session):
+    """Compile the simulator once, in the controlling process, before pytest-xdist starts its
+    workers: numba's on-disk cache (``ssamb/sim/__pycache__``) is then warm for the workers, the
+    smoke workflow's jobs and the replay workers. On a clean clone they would otherwise start at
+    once and each compile it (about 15 CPU s each, against 2 from the cache)."""
+    if hasattr(session.config, "workerinput"):
+        return
+    from ssamb.config import load_config
+    from ssamb.sim import simulate
+
+    simulate(load_config(), "multisine", duration_s=0.01, progress=False)
 
 
 def _run(name: str) -> _Background:

@@ -39,6 +39,7 @@ def workflow(tmp_path_factory):
     smoke = wd / "smoke.yaml"
     cfg = yaml.safe_load((ROOT / "tests" / "data" / "smoke_config.yaml").read_text())
     cfg["closeloop"].pop("datasets", None)      # the record the smoke copy makes is not needed here
+    cfg["closeloop"]["rigs"]["maglev1d"]["config"] = str(ROOT / "tests" / "data" / "maglev1d_smoke.yaml")
     smoke.write_text(yaml.safe_dump(cfg))
     with SnakemakeApi(OutputSettings()) as api:
         wf = api.workflow(resource_settings=ResourceSettings(cores=1),
