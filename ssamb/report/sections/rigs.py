@@ -50,7 +50,9 @@ def _joint(C: dict) -> list:
         rows.append([q["key"], _f(q["nominal"]), f"{q['value']:.5g} +- {q['se']:.2g}",
                      "yes" if q["identified"] else "no"]
                     + [f"{per[r]['value']:.4g} +- {per[r]['se']:.2g}" if r in per else "-" for r in recs])
-    short = " (stopped short: not converged, its cost far above the noise floor)" if J.get("stopped_short") else ""
+    short = (" (stopped short: not converged, its cost far above the noise floor; where such a calibration ends "
+             "depends on the estimator's path, so these values and the held-out errors are one draw of a spread: "
+             "`python bench/maglev_spread.py` measures it over design seeds)") if J.get("stopped_short") else ""
     cap = (f"The combined model: one calibration on all fitting recordings at once, each with its own session "
            f"parameters, started from {J.get('start')}'s calibration; cost {_f(J.get('cost_over_noise_floor'), '.3g')} "
            f"times its noise floor{short}. Every shared parameter enters the model at its estimate, identified "
