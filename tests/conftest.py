@@ -198,7 +198,7 @@ def pytest_sessionstart(session):
     """Compile the simulator once, in the controlling process, before pytest-xdist starts its
     workers: numba's on-disk cache (``ssamb/sim/__pycache__``) is then warm for the workers, the
     smoke workflow's jobs and the replay workers. On a clean clone they would otherwise start at
-    once and each compile it (about 15 CPU s each, against 2 from the cache)."""
+    once and each compile it, several times the cost of loading it from the cache."""
     if hasattr(session.config, "workerinput"):
         return
     from ssamb.config import load_config

@@ -339,6 +339,24 @@ def test_an_effect_the_joint_refit_leaves_at_zero_is_dropped():
     assert out.dropped[0]["name"] == "amplifier_deadtime" and out.dropped[0]["size_chi2"] == pytest.approx(0.04)
 
 
+def test_an_alias_as_plausible_as_the_fit_widens_the_reported_error_not_the_size_test():
+    """An accepted effect whose fit had a point as plausible 4 units away on its second parameter
+    (alias standard deviation 2): after the joint refit (standard errors 0.3) that parameter is
+    reported with sqrt(0.3^2 + 2^2), the other with 0.3; its size is still tested on the joint
+    refit's covariance (the alias is a second value, not a doubt that the effect exists)."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.search import SearchResult, _drop_null_effects
+
+    load = _amb_model("static_load", {"axes": ["x", "y"]})
+    cov = np.diag([1e-4, 0.09, 0.09])
+    fit = SimpleNamespace(theta=np.array([0.01, 18.0, -4.6]), cov_misfit=cov, se_misfit=np.sqrt(np.diag(cov)))
+    out = SearchResult(accepted=[{"name": "static_load", "round": 0, "alias_sd": np.array([0.0, 2.0])}])
+    _drop_null_effects(out, fit, [load], np.array([1, 3]), 1e-3, False)
+    assert [a["name"] for a in out.accepted] == ["static_load"]
+    assert out.accepted[0]["se"] == pytest.approx([0.3, math.sqrt(0.09 + 4.0)])
+
+
 def _amb_model(name: str, hints: dict):
     """The AMB device's parameterisation of an effect on data exciting both axes."""
     from types import SimpleNamespace
