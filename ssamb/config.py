@@ -39,6 +39,7 @@ __all__ = [
     "load_config",
     "validate_config",
     "apply_overrides",
+    "overridden",
     "config_hash",
     "get",
     "load_capacity_n",
@@ -396,6 +397,34 @@ def apply_overrides(cfg: Mapping, overrides: Iterable[str] | Mapping[str, Any] |
             if not isinstance(node, dict) or part not in node:
                 raise ConfigError(f"config key '{'.'.join(parts[: i + 1])}': does not exist (override '{key}')")
             node = node[part]
+        if not isinstance(node, dict) or parts[-1] not in node:
+            raise ConfigError(f"config key '{key}': does not exist (override '{key}')")
+        node[parts[-1]] = value
+    return out
+
+
+def overridden(cfg: Mapping, overrides: Mapping[str, Any]) -> dict:
+    """``cfg`` with dotted-key overrides applied, sharing every section they do not reach.
+
+    The same configuration as :func:`apply_overrides` (and the same error for a key that does
+    not exist), made by copying only the mappings on the overridden keys' paths: for a caller
+    that reads it and never writes it (a replay's configuration per parameter set; a deep copy
+    of the whole configuration costs more than a short replay's set-up).
+    """
+    out = dict(cfg)
+    copied = {id(out)}
+    for key, value in overrides.items():
+        parts = key.split(".")
+        node = out
+        for i, part in enumerate(parts[:-1]):
+            if not isinstance(node, dict) or part not in node:
+                raise ConfigError(f"config key '{'.'.join(parts[: i + 1])}': does not exist (override '{key}')")
+            child = node[part]
+            if isinstance(child, dict) and id(child) not in copied:
+                child = dict(child)
+                node[part] = child
+                copied.add(id(child))
+            node = child
         if not isinstance(node, dict) or parts[-1] not in node:
             raise ConfigError(f"config key '{key}': does not exist (override '{key}')")
         node[parts[-1]] = value

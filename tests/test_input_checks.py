@@ -108,3 +108,29 @@ def test_an_override_typed_1e30_is_a_number():
 
     assert _parse_value("1e30") == 1e30 and _parse_value("5e-4") == 5e-4 and _parse_value("abc") == "abc"
     assert np.isnan(_parse_value("nan")) and _parse_value("[1, 2]") == [1, 2]
+
+
+def test_a_shared_override_is_the_deep_copys_config_and_leaves_the_original():
+    """:func:`ssamb.config.overridden` gives what :func:`ssamb.config.apply_overrides` gives, copies
+    only the sections on the overridden paths (the others are the original's objects), leaves the
+    original as it was and refuses a key that does not exist as the deep copy does."""
+    import copy
+
+    from ssamb.config import overridden
+
+    cfg = load_config()
+    before = copy.deepcopy(cfg)
+    ov = {"table1.airgap_m": 0.61e-3, "table1.mass_kg": 4.0, "selfsensing.calibration_gain_error": 1.02,
+          "closeloop.rigs.maglev1d.config": "other.yaml"}
+    shared = overridden(cfg, ov)
+    assert shared == apply_overrides(cfg, ov) and cfg == before
+    assert shared["experiments"] is cfg["experiments"] and shared["table1"] is not cfg["table1"]
+    assert shared["closeloop"]["datasets"] is cfg["closeloop"]["datasets"]
+    assert shared["closeloop"]["rigs"]["maglev1d"]["fit"] is cfg["closeloop"]["rigs"]["maglev1d"]["fit"]
+    assert shared["closeloop"]["rigs"]["maglev1d"] is not cfg["closeloop"]["rigs"]["maglev1d"]
+    for bad in ("table1.airgap_mm", "table1.airgap_m.x", "nosection.key"):
+        with pytest.raises(ConfigError) as deep:
+            apply_overrides(cfg, {bad: 1.0})
+        with pytest.raises(ConfigError) as light:
+            overridden(cfg, {bad: 1.0})
+        assert str(light.value) == str(deep.value)

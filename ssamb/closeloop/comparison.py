@@ -274,11 +274,11 @@ class Comparison:
 
     def _unphysical(self, overrides) -> str | None:
         """Why the model with ``overrides`` lies outside the device's physical domain (None: inside)."""
-        from ..config import apply_overrides
+        from ..config import overridden
 
         if not overrides:
             return None
-        return self.device.physical(apply_overrides(self.replay.cfg, overrides))
+        return self.device.physical(overridden(self.replay.cfg, overrides))
 
     def evaluate_many(self, part: Part, build):
         """``[(theta, seed), ...] -> [residual, ...]``: :meth:`evaluator` over a batch, on the

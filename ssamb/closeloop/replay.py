@@ -136,7 +136,7 @@ class Replayer:
         cache : bool
             Keep the result (an estimator's design runs are never asked for twice).
         """
-        from ..config import apply_overrides
+        from ..config import overridden
 
         effects = [dict(e) for e in effects]
         n = self.record.n if n is None else int(n)
@@ -149,7 +149,7 @@ class Replayer:
         cfg = self.cfg
         if ov:                    # one configuration per parameter set, shared by its seeds (never written)
             ck = json.dumps(ov, sort_keys=True)
-            cfg = self._cfgs.pop(ck, None) or apply_overrides(self.cfg, ov)
+            cfg = self._cfgs.pop(ck, None) or overridden(self.cfg, ov)
             self._cfgs[ck] = cfg
             while len(self._cfgs) > 8:
                 self._cfgs.pop(next(iter(self._cfgs)))
