@@ -14,7 +14,7 @@ whose own model, replayed on the draw's record, drops the ball (:func:`_alike`).
 library effect with a size drawn from its range (:data:`SIZES`),
 among the effects the device can identify on that recording, or none in the null draws. The
 rig's data are a replay of that rig driven by the recording's reference, from its states, with a
-seed of its own; the analysis (:func:`ssamb.closeloop.analyse`) sees only the data and the
+seed of its own and its converters rounding as a rig's do; the analysis (:func:`ssamb.closeloop.analyse`) sees only the data and the
 published-parameter model.
 
 A draw with an effect passes when the effect is found (first in the list of effects) and its
@@ -216,7 +216,9 @@ def run_draw(args) -> dict:
     rec = dev.record(arrays, meta, cfg, path.name)
     for attempt in range(20):            # a rig whose ball never levitates makes no data: draw again
         ov, rig = _rig_config(dev, cfg, center, rng, None, spread)
-        out = dev.replay(rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
+        # the rig's data round (the model's replays add the rounding errors: ssamb.maglev1d.physics)
+        as_rig = {**rig, "replay": {**rig["replay"], "additive_quantisers": 0}}
+        out = dev.replay(as_rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
         data = {**arrays, **{c: out.channels[c] for c in dev.channels}}
         if out.contact:
             continue

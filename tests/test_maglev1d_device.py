@@ -109,6 +109,34 @@ def test_replay_deterministic_seeded_and_pickles():
     assert DEV.replay(CFG, rec, [], rec.n, None).channels["y"].shape == (rec.n,)
 
 
+def test_additive_replay_is_smooth_in_the_parameters_for_a_seed():
+    """A seeded replay with additive quantisers moves by a tiny amount for a tiny change of a
+    parameter; a rounded one flips counts, and the loop makes another realisation of it."""
+    from ssamb.config import apply_overrides
+
+    rec = _record("constante")
+    a0 = rec.usable[0][0]
+    start = apply_overrides(CFG, DEV.initial_estimate(rec, CFG))      # the published model drops the ball
+    out = {}
+    for add in (0, 1):
+        cfg = {**start, "replay": {**start["replay"], "additive_quantisers": add}}
+        moved = {**cfg, "magnet": {**cfg["magnet"], "k_h": cfg["magnet"]["k_h"] * (1 + 1e-7)}}
+        r0, r1 = (DEV.replay(c, rec, [], rec.n, 7) for c in (cfg, moved))
+        assert not r0.contact and not r1.contact
+        out[add] = float(np.max(np.abs(r1.channels["y"][a0:] - r0.channels["y"][a0:])))
+    q = controller.position_lsb_m(CFG)
+    assert out[1] < 1e-3 * q
+    assert out[0] >= q
+
+
+def test_rig_data_round_to_the_adcs_counts():
+    yd = np.full(300, 0.005)
+    cfg = {**CFG, "amplifier": {**CFG["amplifier"], "v_max_v": 4.85}}
+    log = DEV.simulate_log(cfg, yd, seed=3)
+    q = controller.position_lsb_m(CFG)
+    np.testing.assert_allclose(log["y"] / q, np.round(log["y"] / q), atol=1e-9)
+
+
 def _levitating_arrays(n=400, scale=1.0):
     t = np.arange(n) * 0.01
     return {"t": t, "y": np.full(n, 0.005) * scale, "i": np.full(n, 0.45), "u": np.full(n, 7.0), "yd": np.full(n, 0.005) * scale}

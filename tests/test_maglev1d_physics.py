@@ -115,20 +115,46 @@ def test_restitution_rebound():
 
 def test_adc_rounds_to_the_nearest_count_and_clips():
     q = 0.05 / 1023
-    assert P._adc(10.49 * q, q, 1023.0) == pytest.approx(10 * q)
-    assert P._adc(10.51 * q, q, 1023.0) == pytest.approx(11 * q)
-    assert P._adc(-3 * q, q, 1023.0) == 0.0
-    assert P._adc(2000 * q, q, 1023.0) == pytest.approx(1023 * q)
+    assert P._adc(10.49 * q, q, 1023.0, 0.0, 0.3) == pytest.approx(10 * q)
+    assert P._adc(10.51 * q, q, 1023.0, 0.0, -0.3) == pytest.approx(11 * q)
+    assert P._adc(-3 * q, q, 1023.0, 0.0, 0.0) == 0.0
+    assert P._adc(2000 * q, q, 1023.0, 0.0, 0.0) == pytest.approx(1023 * q)
+
+
+def test_additive_adc_adds_its_draw_and_clips():
+    q = 0.05 / 1023
+    assert P._adc(10.3 * q, q, 1023.0, 1.0, 0.2) == pytest.approx(10.5 * q)
+    assert P._adc(10.3 * q, q, 1023.0, 1.0, -0.5) == pytest.approx(9.8 * q)
+    assert P._adc(-3 * q, q, 1023.0, 1.0, 0.4) == 0.0
+    assert P._adc(2000 * q, q, 1023.0, 1.0, -0.4) == pytest.approx(1023 * q)
 
 
 def test_pwm_duty_truncates_to_its_steps_and_clips():
     p = _knobs()
+    p[P.QADD] = 0.0
     step = p[P.VREF] / p[P.NPWM]
-    assert P._amplifier(p, 10.7 * step) == pytest.approx(10 * step * p[P.VMAX] / p[P.VREF])
-    assert P._amplifier(p, 1e3) == pytest.approx(p[P.VMAX])
-    assert P._amplifier(p, -1.0) == 0.0
+    assert P._amplifier(p, 10.7 * step, 0.4) == pytest.approx(10 * step * p[P.VMAX] / p[P.VREF])
+    assert P._amplifier(p, 1e3, 0.0) == pytest.approx(p[P.VMAX])
+    assert P._amplifier(p, -1.0, 0.0) == 0.0
     p[P.VDROP] = 1.2
-    assert P._amplifier(p, 1e3) == pytest.approx(p[P.VMAX] - 1.2)
+    assert P._amplifier(p, 1e3, 0.0) == pytest.approx(p[P.VMAX] - 1.2)
+
+
+def test_additive_pwm_keeps_the_truncations_mean():
+    """The additive duty is the command less half a step plus the draw: over uniform draws its
+    mean is the truncation's mean over a uniformly spread command, :math:`u - 1/2` step."""
+    p = _knobs()
+    p[P.QADD] = 1.0
+    step = p[P.VREF] / p[P.NPWM]
+    gain = p[P.VMAX] / p[P.VREF]
+    assert P._amplifier(p, 10.7 * step, 0.1) == pytest.approx(10.3 * step * gain)
+    draws = np.linspace(-0.5, 0.5, 1001)[:-1] + 0.0005
+    mean_add = np.mean([P._amplifier(p, 10.7 * step, d) for d in draws])
+    p[P.QADD] = 0.0
+    mean_trunc = np.mean([P._amplifier(p, (10.0 + f) * step, 0.0) for f in np.linspace(0, 1, 1001)[:-1] + 0.0005])
+    assert mean_add == pytest.approx((10.7 - 0.5) * step * gain, rel=1e-9)
+    assert mean_trunc == pytest.approx(10.0 * step * gain, rel=1e-9)
+    assert P._amplifier(p, 1e3, 0.0) == pytest.approx(p[P.VMAX])
 
 
 def test_simulation_holds_a_ball_at_equilibrium_and_is_deterministic():

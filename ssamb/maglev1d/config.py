@@ -32,6 +32,7 @@ _RANGES = {
     "noise.position_m": (0.0, 1e-3, True),
     "noise.current_a": (0.0, 1.0, True),
     "noise.force_n": (0.0, 1.0, True),
+    "replay.additive_quantisers": (0.0, 1.0, True),
     "levitation.settle_s": (0.0, 10.0, True),
 }
 
@@ -87,6 +88,8 @@ def validate(cfg: Mapping, where: str = "maglev1d config") -> None:
         raise ConfigError(f"{where}: key 'amplifier.pwm_steps': must be a whole number")
     if cfg["replay"]["substeps"] != int(cfg["replay"]["substeps"]) or cfg["replay"]["substeps"] < 2:
         raise ConfigError(f"{where}: key 'replay.substeps': must be a whole number >= 2")
+    if cfg["replay"].get("additive_quantisers", 0) not in (0, 1):
+        raise ConfigError(f"{where}: key 'replay.additive_quantisers': must be 0 or 1")
     cal = (cfg.get("closeloop") or {}).get("calibration") or {}
     if not isinstance(cal, Mapping):
         raise ConfigError(f"{where}: key 'closeloop.calibration': must be a mapping of dotted keys to tolerances")

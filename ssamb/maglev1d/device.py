@@ -51,6 +51,20 @@ def one_level_family(a_m: float, k_h: float, gain: float, new_gain: float, level
     return a2, k_h * a_m / a2
 
 
+def _draws(seed: int | None, n: int, additive: bool) -> tuple:
+    """A replay's random draws: ``(3, n)`` standard normal (position, current, force noise) and,
+    with additive quantisers, ``(3, n)`` uniform on :math:`[-1/2, 1/2)` (the position and current
+    ADCs' and the PWM's rounding errors) from a stream of their own (a replay's first samples
+    do not depend on its length); None for ``seed=None`` (no noise; the rounding errors at their
+    mean)."""
+    if seed is None:
+        return None, None
+    noise = np.ascontiguousarray(np.random.default_rng(seed).standard_normal((n, 3)).T)
+    if not additive:
+        return noise, None
+    return noise, np.ascontiguousarray(np.random.default_rng([seed, 1]).random((n, 3)).T - 0.5)
+
+
 def _chk_face(record: Record, cfg: Mapping) -> dict:
     """:func:`ssamb.maglev1d.checks.face_reading` of a record."""
     from .checks import face_reading
@@ -432,9 +446,9 @@ class Maglev1D(Device):
         p = _phys.knobs_of(cfg, kn)
         segs = [(a, min(b, n)) for a, b in record.usable if a < n]
         init = self.initial_states(record, cfg, kn, segs)
-        noise = None if seed is None else np.ascontiguousarray(np.random.default_rng(seed).standard_normal((n, 3)).T)
+        noise, dither = _draws(seed, n, p[_phys.knob_index("additive_quantisers")] > 0)
         out = _phys.simulate(p, _ctl.gains_of(cfg), record.inputs["yd"][:n], segs, init, noise,
-                             t0_s=record.meta.get("t0_s", 0.0))
+                             t0_s=record.meta.get("t0_s", 0.0), dither=dither)
         ch = {}
         for c in self.channels:
             a = record.channels[c][:n].copy()
@@ -457,6 +471,7 @@ class Maglev1D(Device):
         yd = np.asarray(yd, float)
         kn = self.knobs(cfg, effects or [])
         p = _phys.knobs_of(cfg, kn)
+        p[_phys.knob_index("additive_quantisers")] = 0.0     # a rig rounds
         y0, i0, u0 = _phys.equilibrium(p, float(yd[0]))
         init = np.array([[y0, 0.0, i0, 0.0, -(i0 + kn["current_offset_a"]), u0, u0]])
         n = len(yd)

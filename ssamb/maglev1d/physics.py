@@ -53,8 +53,20 @@ Sensors: the position ADC count is :math:`\operatorname{round}(y_s / q_y)` clipp
 zero in the published linear sensor, leaves the scale and the reading at :math:`c` as they are); the
 current ADC count likewise of :math:`i + n_i` (:math:`q_i = 5/(2.2\cdot 1023)` A). The noise terms
 are white, Gaussian, one draw per sample, their levels in the config (``noise``): a replay is a
-realisation of this noise (with quantisation, which is deterministic given the state). A random
-force (``noise.force_n``, held over a sample) stands for the air and the table.
+realisation of this noise. A random force (``noise.force_n``, held over a sample) stands for the
+air and the table.
+
+Quantisers: the rig rounds (the ADCs to the nearest count, the PWM's duty down to a whole step).
+A replay with ``replay.additive_quantisers`` 1 replaces each rounding error by a uniform draw
+:math:`d_k \in [-1/2, 1/2)` of one step (the ADC: :math:`\mathrm{count} = x/q + d_k`; the PWM:
+:math:`D = (u N_{pwm}/V_{ref} - 1/2 + d_k)/N_{pwm}`, the truncation's mean half step kept), clipped
+to the same ranges. With the sensor noise ahead of the ADCs (0.35 position counts, 1.4 current
+counts) the rounding error is close to such a draw, so the two replays have the same noise; but a
+rounded replay is a discontinuous function of the parameters -- a change far below any finite
+difference flips a count, the loop feeds the flip back, and for a fixed seed the replay becomes
+another realisation -- while an additive one, for a fixed seed, is smooth in every parameter
+(contact events and the controller's integrator resets aside). Rigs simulated as data
+(:meth:`ssamb.maglev1d.device.Maglev1D.simulate_log`) round.
 
 Numerics: RK4 with ``replay.substeps`` fixed steps per sample, the interval split at the
 computation delay so that the output is smooth in every parameter; contact events are resolved
@@ -85,10 +97,12 @@ KNOBS = (
     "sensor_delay_s", "actuation_delay_s", "sensor_gain", "sensor_offset_m", "extra_force_n", "eddy_tau_s",
     "saturation_per_a2", "drop_v", "r_rate_ohm_per_s", "current_offset_a", "remanence_a",
     "sensor_curvature_per_m", "sensor_centre_m",
+    # numerics
+    "additive_quantisers",
 )
 _I = {n: j for j, n in enumerate(KNOBS)}
 (M, G, K0, K, A, R, VMAX, VREF, NPWM, QY, NY, QI, NI, YTOP, YBOT, REST, NSUB, SY, SI, SF, DY, DU, GY, OY,
- FEXT, TAUE, CSAT, VDROP, RRATE, IOFF, IREM, QS, RC) = range(len(KNOBS))
+ FEXT, TAUE, CSAT, VDROP, RRATE, IOFF, IREM, QS, RC, QADD) = range(len(KNOBS))
 
 
 def knob_index(name: str) -> int:
@@ -234,11 +248,15 @@ def _rk4(p, st, v, r, f, h):
 
 
 @numba.njit(cache=True)
-def _amplifier(p, u):
-    """Average coil voltage of the PWM stage for the command ``u``."""
+def _amplifier(p, u, d):
+    """Average coil voltage of the PWM stage for the command ``u`` (``d``: the truncation's
+    uniform draw in :math:`[-1/2, 1/2)` when the quantisers are additive)."""
     duty = u / p[VREF]
     if p[NPWM] > 0.0:
-        duty = math.floor(duty * p[NPWM] + 1e-9) / p[NPWM]
+        if p[QADD] > 0.0:
+            duty = (duty * p[NPWM] - 0.5 + d) / p[NPWM]
+        else:
+            duty = math.floor(duty * p[NPWM] + 1e-9) / p[NPWM]
     if duty < 0.0:
         duty = 0.0
     elif duty > 1.0:
@@ -247,8 +265,11 @@ def _amplifier(p, u):
 
 
 @numba.njit(cache=True)
-def _adc(x, lsb, counts):
-    c = math.floor(x / lsb + 0.5)
+def _adc(x, lsb, counts, add, d):
+    if add > 0.0:
+        c = x / lsb + d                 # additive: the rounding error as a uniform draw
+    else:
+        c = math.floor(x / lsb + 0.5)
     if c < 0.0:
         c = 0.0
     elif c > counts:
@@ -270,7 +291,7 @@ def _hermite(t0, y0, v0, t1, y1, v1, t):
 
 
 @numba.njit(cache=True)
-def _simulate(p, g, yd, t0_s, seg_a, seg_b, init, ny, ni, nf, out_y, out_i, out_u, out_true, out_contact):
+def _simulate(p, g, yd, t0_s, seg_a, seg_b, init, ny, ni, nf, qy, qi, qu, out_y, out_i, out_u, out_true, out_contact):
     ts = g[0]
     nsub = int(p[NSUB])
     st = np.zeros(4)
@@ -291,7 +312,7 @@ def _simulate(p, g, yd, t0_s, seg_a, seg_b, init, ny, ni, nf, out_y, out_i, out_
             st[1] = 0.0
             st[3] = 2.0
         ctl[0], ctl[1], ctl[2], ctl[3] = init[s, 3], init[s, 4], init[s, 5], 0.0
-        v_prev = _amplifier(p, init[s, 6])
+        v_prev = _amplifier(p, init[s, 6], 0.0)
         # history of the last interval: one node at the start (the ball's state, moving at v0)
         nh = 2
         hist_t[0], hist_y[0], hist_v[0] = -ts, st[0] - ts * st[1], st[1]
@@ -311,9 +332,9 @@ def _simulate(p, g, yd, t0_s, seg_a, seg_b, init, ny, ni, nf, out_y, out_i, out_
                 else:
                     yq = _hermite(hist_t[j - 1], hist_y[j - 1], hist_v[j - 1], hist_t[j], hist_y[j], hist_v[j], tq)
             reading = _reading(p, yq) + p[SY] * ny[k]
-            ym = _adc(reading, p[QY], p[NY])
+            ym = _adc(reading, p[QY], p[NY], p[QADD], qy[k])
             it = _terminal(p, st[0], st[2], v_prev, r)
-            im_meas = _adc(it + p[IOFF] + p[SI] * ni[k], p[QI], p[NI])
+            im_meas = _adc(it + p[IOFF] + p[SI] * ni[k], p[QI], p[NI], p[QADD], qi[k])
             u = controller_step(ctl, ym, im_meas, yd[k], g)
             out_y[k] = ym
             out_i[k] = im_meas
@@ -321,7 +342,7 @@ def _simulate(p, g, yd, t0_s, seg_a, seg_b, init, ny, ni, nf, out_y, out_i, out_
             out_true[k, 0] = st[0]
             out_true[k, 1] = it
             out_true[k, 2] = st[2]
-            v_new = _amplifier(p, u)
+            v_new = _amplifier(p, u, qu[k])
             f = p[FEXT] + p[SF] * nf[k]
             # -- integrate to the next sample: the old voltage until the computation delay ends
             n1 = 0
@@ -359,7 +380,7 @@ def _simulate(p, g, yd, t0_s, seg_a, seg_b, init, ny, ni, nf, out_y, out_i, out_
 
 
 def simulate(knobs: np.ndarray, gains: np.ndarray, yd: np.ndarray, segments, init: np.ndarray,
-             noise: np.ndarray | None, t0_s: float = 0.0) -> dict:
+             noise: np.ndarray | None, t0_s: float = 0.0, dither: np.ndarray | None = None) -> dict:
     """Run the model over ``segments`` of a record.
 
     Parameters
@@ -389,12 +410,14 @@ def simulate(knobs: np.ndarray, gains: np.ndarray, yd: np.ndarray, segments, ini
     seg = np.asarray(segments, dtype=np.int64).reshape(-1, 2)
     if noise is None:
         noise = np.zeros((3, n))
+    if dither is None:
+        dither = np.zeros((3, n))
     out = {c: np.full(n, np.nan) for c in ("y", "i", "u")}
     true = np.full((n, 3), np.nan)
     contact = np.zeros(n, dtype=np.int64)
     _simulate(np.asarray(knobs, float), np.asarray(gains, float), np.asarray(yd, float), float(t0_s),
               np.ascontiguousarray(seg[:, 0]), np.ascontiguousarray(seg[:, 1]), np.asarray(init, float).reshape(-1, 7),
-              noise[0], noise[1], noise[2], out["y"], out["i"], out["u"], true, contact)
+              noise[0], noise[1], noise[2], dither[0], dither[1], dither[2], out["y"], out["i"], out["u"], true, contact)
     out["state"] = true
     out["contact"] = contact
     return out
@@ -417,6 +440,7 @@ def knobs_of(cfg, knobs: dict | None = None) -> np.ndarray:
         "substeps": c["replay"]["substeps"],
         "noise_position_m": c["noise"]["position_m"], "noise_current_a": c["noise"]["current_a"],
         "noise_force_n": c["noise"]["force_n"],
+        "additive_quantisers": float(c["replay"].get("additive_quantisers", 0)),
     }
     v.update(neutral_knobs())
     v.update(knobs or {})
