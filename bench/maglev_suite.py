@@ -14,8 +14,8 @@ whose own model, replayed on the draw's record, drops the ball (:func:`_alike`).
 library effect with a size drawn from its range (:data:`SIZES`),
 among the effects the device can identify on that recording, or none in the null draws. The
 rig's data are a replay of that rig driven by the recording's reference, from its states, with a
-seed of its own and its converters rounding as a rig's do; the analysis (:func:`ssamb.closeloop.analyse`) sees only the data and the
-published-parameter model.
+seed of its own and its converters rounding as a rig's do; the analysis
+(:func:`ssamb.closeloop.analyse`) sees only the data and the published-parameter model.
 
 A draw with an effect passes when the effect is found (first in the list of effects) and its
 size is within three standard errors or 25 % of the truth; a null draw passes when no effect is
