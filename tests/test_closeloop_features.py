@@ -263,3 +263,51 @@ def test_report_says_when_the_misfit_stays_far_above_the_noise_and_how_the_optim
     opt = optimum_of(fit, 1.0)
     assert not opt["converged"] and opt["last_step_posterior_sd"] == 1.7
     assert "did NOT converge" in _misfit_notes({}, opt)[0]
+
+
+def test_a_single_period_held_out_part_reads_its_dc_noise_from_the_fitting_part():
+    """A periodic record (5 Hz multisine, 40 periods of fitting part, one held out) with noise a
+    loop with integral action leaves: small at DC, large above (first-order high-pass at 20 Hz
+    plus a little white noise). The held-out part is too short to be periodic; its own Welch
+    estimate reads the DC noise at its lowest bins, far above DC, and the whitened DC difference
+    of data and model then scatters far below one. With the fitting part's low-frequency noise
+    (:func:`ssamb.closeloop.features.low_frequency_from`) it scatters about one, and a small
+    offset shows."""
+    from ssamb.closeloop.features import low_frequency_from
+
+    rng = np.random.default_rng(17)
+    fs, n_p = 2000.0, 400
+    P = 41
+    n = n_p * P
+    t = np.arange(n) / fs
+    s = sum(np.sin(2 * np.pi * f * t + k) for k, f in enumerate((5.0, 10.0, 15.0, 20.0, 25.0)))
+    fr_fit = make_frame(fs, 0, n_p * (P - 1), {"y": s}, n_p, np.array([5.0, 10.0, 15.0, 20.0, 25.0]))
+    fr_hold = make_frame(fs, n_p * (P - 1), n_p, {"y": s}, n_p, np.array([5.0, 10.0, 15.0, 20.0, 25.0]))
+    assert fr_fit.periodic and not fr_hold.periodic
+    lay_f = make_layout(fr_fit, {"y": s}, views=("y",))
+    lay_h = make_layout(fr_hold, {"y": s}, views=("y",))
+    b, a = signal.butter(1, 20.0, "highpass", fs=fs)
+
+    def sample(offset=0.0):
+        return {"y": s + signal.lfilter(b, a, rng.standard_normal(n)) + 0.05 * rng.standard_normal(n) + offset}
+
+    def dc(offset, shared):
+        out = []
+        for _ in range(200):
+            d, m = sample(offset), sample()
+            fd, fm = features(lay_h, d), features(lay_h, m)
+            if shared:
+                fd = low_frequency_from(fd, lay_h, features(lay_f, d), fr_fit.n)
+                fm = low_frequency_from(fm, lay_h, features(lay_f, m), fr_fit.n)
+            W = Whitener.build(lay_h, fd, fm)
+            out.append(W.residual(fd, fm)[W.groups()["dc"]][0])
+        return np.array(out)
+    own, shared = dc(0.0, False), dc(0.0, True)
+    assert np.var(own) < 0.2, np.var(own)
+    assert 0.7 < np.var(shared) < 1.4, np.var(shared)
+    # an offset of two standard deviations of the held-out DC difference: seen with the shared
+    # estimate (mean whitened value near 2), barely with the part's own
+    sd_sum = np.sqrt(features(lay_f, sample()).cov_dc[0, 0] / fr_fit.n * n_p * 2)
+    off = 2.0 * sd_sum / n_p
+    assert np.mean(dc(off, True)) == pytest.approx(2.0, abs=0.35)
+    assert abs(np.mean(dc(off, False))) < 1.0

@@ -29,7 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .data import Record, Split
-from .features import Features, Layout, Whitener, features, make_layout, replicate_factors, scale_views
+from .features import (Features, Layout, Whitener, features, low_frequency_from, make_layout, replicate_factors,
+                       scale_views)
 from .replay import Replayer
 from .spectra import Frame, make_frame
 
@@ -172,7 +173,16 @@ class Comparison:
         meas = self.device.views(self.record.channels)
         self.fit.data = features(self.fit.layout, meas, self.floor)
         factors = self.fit.data.factors or None
-        self.hold.data = features(self.hold.layout, meas, self.floor, factors=factors)
+        self.hold.data = self._low_from_fit(features(self.hold.layout, meas, self.floor, factors=factors),
+                                            self.fit.data)
+
+    def _low_from_fit(self, f, fit_f):
+        """The held-out part's features ``f`` with the fitting part's low-frequency noise
+        (:func:`ssamb.closeloop.features.low_frequency_from`) when the record is periodic but the
+        held-out part too short to be read as such (fewer than two periods); else ``f``."""
+        if not (self.fit.frame.periodic and not self.hold.frame.periodic and self.split.n_period):
+            return f
+        return low_frequency_from(f, self.hold.layout, fit_f, self.fit.frame.n)
 
     def set_lines(self, lines_hz) -> None:
         """Read the given line frequencies as features too, beside the device's own (and rebuild
@@ -217,6 +227,8 @@ class Comparison:
             self._residual_noise(mean, len(runs))
         ones = (np.ones(len(self.device.cost_views)), np.ones(len(self.device.cost_views)))
         fac_fit = replicate_factors([features(self.fit.layout, r) for r in runs]) if len(runs) >= 3 else None
+        self.hold.data = self._low_from_fit(self.hold.data, self.fit.data)
+        fm_fit = None
         for part in (self.fit, self.hold):
             fac = fac_fit
             if part is self.hold and fac is not None and (part.layout.n_win or part.layout.bands):
@@ -231,6 +243,10 @@ class Comparison:
 
                 extra = (self.dl_relative * np.abs(fm.dl)) ** 2
                 fm = dataclasses.replace(fm, cov_dl=fm.cov_dl + np.einsum("lv,vw->lvw", extra, np.eye(extra.shape[1])))
+            if part is self.fit:
+                fm_fit = fm
+            else:
+                fm = self._low_from_fit(fm, fm_fit)
             part.model_factors = fac or ()
             part.whitener = Whitener.build(part.layout, part.data, fm)
 

@@ -60,7 +60,7 @@ from scipy import signal
 
 from .spectra import Frame, _bands
 
-__all__ = ["Features", "Layout", "make_layout", "features", "Whitener", "line_phasors",
+__all__ = ["Features", "Layout", "make_layout", "features", "low_frequency_from", "Whitener", "line_phasors",
            "scale_views", "replicate_factors", "band_plan", "band_dof", "log_bias", "log_var"]
 
 
@@ -624,6 +624,28 @@ def features(layout: Layout, ch: dict, floor=None, factors: tuple | None = None,
         if noise:
             extra["cov_dl"] = _dl_noise(layout, xd)
     return dataclasses.replace(f, **extra) if extra else f
+
+
+def low_frequency_from(f: Features, layout: Layout, longer: Features, n_longer: int) -> Features:
+    r"""``f`` with the low-frequency noise (``dc``, ``win``) of a longer periodic segment of the
+    same record.
+
+    A sum of :math:`n` samples of stationary noise has variance :math:`n G` with
+    :math:`G = f_s S(0^+)/2`; the longer segment's DC covariance gives :math:`G = C_{dc}/n_{longer}`
+    (its off-grid bins nearest DC, a fraction of the excitation's resolution away), and ``f``
+    takes :math:`n G` for its DC and :math:`G/L` for its window means. A segment of a periodic
+    record too short to hold two periods is a Welch frame whose lowest bins lie at
+    :math:`f_s/n_{per}` and above, where a loop with integral action has far more noise than at
+    DC (a single-period held-out part of a 5 Hz multisine read its ``d_y`` DC noise at 40-120 Hz,
+    18 times the variance its replays show): its own estimate would hide a static load there.
+    """
+    import dataclasses
+
+    g = np.asarray(longer.cov_dc, float) / float(n_longer)
+    out = {"cov_dc": g * layout.frame.n}
+    if layout.n_win and f.cov_win.size:
+        out["cov_win"] = np.repeat((g / layout.win_len)[None], layout.n_win - 1, axis=0)
+    return dataclasses.replace(f, **out)
 
 
 def _dl_noise(layout: Layout, xd: np.ndarray) -> np.ndarray:
