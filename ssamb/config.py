@@ -390,17 +390,7 @@ def apply_overrides(cfg: Mapping, overrides: Iterable[str] | Mapping[str, Any] |
     if not overrides:
         return out
     items = overrides.items() if isinstance(overrides, Mapping) else (_split_override(s) for s in overrides)
-    for key, value in items:
-        parts = key.split(".")
-        node = out
-        for i, part in enumerate(parts[:-1]):
-            if not isinstance(node, dict) or part not in node:
-                raise ConfigError(f"config key '{'.'.join(parts[: i + 1])}': does not exist (override '{key}')")
-            node = node[part]
-        if not isinstance(node, dict) or parts[-1] not in node:
-            raise ConfigError(f"config key '{key}': does not exist (override '{key}')")
-        node[parts[-1]] = value
-    return out
+    return _set_keys(out, items, copy_path=False)
 
 
 def overridden(cfg: Mapping, overrides: Mapping[str, Any]) -> dict:
@@ -411,16 +401,21 @@ def overridden(cfg: Mapping, overrides: Mapping[str, Any]) -> dict:
     that reads it and never writes it (a replay's configuration per parameter set; a deep copy
     of the whole configuration costs more than a short replay's set-up).
     """
-    out = dict(cfg)
+    return _set_keys(dict(cfg), overrides.items(), copy_path=True)
+
+
+def _set_keys(out: dict, items: Iterable[tuple[str, Any]], copy_path: bool) -> dict:
+    """Set every dotted key of ``items`` in ``out`` (each must exist); with ``copy_path`` the
+    mappings on the way are copied first (once each), so that ``out`` shares none it changes."""
     copied = {id(out)}
-    for key, value in overrides.items():
+    for key, value in items:
         parts = key.split(".")
         node = out
         for i, part in enumerate(parts[:-1]):
             if not isinstance(node, dict) or part not in node:
                 raise ConfigError(f"config key '{'.'.join(parts[: i + 1])}': does not exist (override '{key}')")
             child = node[part]
-            if isinstance(child, dict) and id(child) not in copied:
+            if copy_path and isinstance(child, dict) and id(child) not in copied:
                 child = dict(child)
                 node[part] = child
                 copied.add(id(child))
