@@ -137,6 +137,38 @@ def test_rig_data_round_to_the_adcs_counts():
     np.testing.assert_allclose(log["y"] / q, np.round(log["y"] / q), atol=1e-9)
 
 
+def test_start_candidates_are_the_one_level_family_through_the_start():
+    """Every candidate keeps the start's equilibrium current and gap-dependent inductance at the
+    mean reading of the compared parts (with the start's zero), its sensor scale on a grid of a
+    quarter tolerance up to two about the start's; a start without the scale gives none."""
+    from ssamb.maglev1d.physics import equilibrium_current_a, inductance_h
+
+    rec = _record("constante")
+    start = {"sensors.position_gain": 0.9, "magnet.a_m": 0.004, "magnet.k_h": 0.04, "sensors.position_offset_m": 2e-4,
+             "amplifier.v_max_v": 5.0}
+    cands = DEV.start_candidates(rec, CFG, start)
+    lev = np.concatenate([rec.channels["y"][a:b] for a, b in rec.usable])
+    y_read = float(np.mean(lev)) - start["sensors.position_offset_m"]
+    b = CFG["ball"]
+
+    def at_level(c):
+        y = y_read / c["sensors.position_gain"]
+        return (equilibrium_current_a(y, b["mass_kg"], b["gravity_m_per_s2"], c["magnet.k_h"], c["magnet.a_m"]),
+                inductance_h(y, 0.0, c["magnet.k_h"], c["magnet.a_m"]))
+    tol = CFG["closeloop"]["calibration"]["sensors.position_gain"]
+    steps = sorted(round((c["sensors.position_gain"] - 0.9) / (0.25 * tol), 9) for c in cands)
+    from ssamb.maglev1d.device import one_level_family
+
+    for x in (x for x in range(-8, 9) if x != 0):        # every grid member whose law keeps a length
+        a2, _ = one_level_family(0.004, 0.04, 0.9, 0.9 + 0.25 * x * tol, y_read)
+        assert (x in steps) == (a2 > 0)
+    assert len(steps) >= 12
+    for c in cands:
+        assert at_level(c) == pytest.approx(at_level(start), rel=1e-12)
+        assert c["amplifier.v_max_v"] == 5.0 and c["sensors.position_offset_m"] == 2e-4
+    assert DEV.start_candidates(rec, CFG, {"magnet.a_m": 0.004, "magnet.k_h": 0.04}) == []
+
+
 def _levitating_arrays(n=400, scale=1.0):
     t = np.arange(n) * 0.01
     return {"t": t, "y": np.full(n, 0.005) * scale, "i": np.full(n, 0.45), "u": np.full(n, 7.0), "yd": np.full(n, 0.005) * scale}

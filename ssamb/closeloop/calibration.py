@@ -208,12 +208,32 @@ def calibrate_model(cmp, specs: list[ParameterSpec], effects: list, settings: Es
     prob = calibration_problem(specs, None, seed0=seed0, start=start, groups=cmp.groups(cmp.fit), max_step_rel=step_rel)
     prob.evaluate = cmp.evaluator(cmp.fit, build)
     prob.evaluate_many = cmp.evaluate_many(cmp.fit, build)
+    if start is not None and hasattr(cmp.device, "start_candidates"):
+        prob.start = _best_start(cmp, specs, prob, np.asarray(start, float), settings)
     fit, scores = best_fit(prob, settings, restarts, log)
     sd = np.array([s.prior_sd for s in specs])
     ident = identifiability(fit.info, sd, tuple(s.key for s in specs), ratio, cov=fit.cov,
                             relative=tuple(s.relative for s in specs))
     conflicts = [s.key for s, t in zip(specs, fit.theta) if abs(t) > conflict_z * s.prior_sd]
     return Calibration(specs, fit, ident, conflicts, scores)
+
+
+def _best_start(cmp, specs: list[ParameterSpec], prob, start: np.ndarray, settings: EstimateSettings) -> np.ndarray:
+    """The start among ``start`` and the device's candidates about it (optional
+    ``Device.start_candidates(record, cfg, overrides)``: models the data's start estimate cannot
+    tell apart) whose ``centre_runs`` replays on the fitting part drop the body least, then fit
+    it best (:func:`ssamb.closeloop.estimate.drops_and_cost`; the fitting data only)."""
+    from .estimate import drops_and_cost
+
+    cands = cmp.device.start_candidates(cmp.record, cmp.replay.cfg, overrides_of(specs, start)) or []
+    keys = [sp.key for sp in specs]
+    thetas = [start] + [np.clip([sp.theta_of(c[sp.key]) if sp.key in c else t for sp, t in zip(specs, start)],
+                                prob.lower, prob.upper) for c in cands if set(c) <= set(keys)]
+    if len(thetas) == 1:
+        return start
+    score = [drops_and_cost(prob.batch([(th, prob.seed0 + 650_500 + j) for j in range(settings.centre_runs)]))
+             for th in thetas]
+    return thetas[min(range(len(thetas)), key=lambda j: score[j])]
 
 
 def identifiability(info: np.ndarray, prior_sd: np.ndarray, names: tuple, ratio: float,

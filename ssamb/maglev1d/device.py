@@ -179,6 +179,34 @@ class Maglev1D(Device):
                 break
         return best
 
+    def start_candidates(self, record: Record, cfg: Mapping, start: Mapping) -> list:
+        r"""Other starts for the calibration about ``start`` (dotted key -> value; optional, beyond
+        :class:`ssamb.device.Device`): the members of the one-level family
+        (:func:`one_level_family`) through it at the mean reading of the compared parts, the sensor's
+        scale moved in steps of a quarter of its tolerance up to two tolerances. At one level the
+        data's equilibrium current and inductance cannot tell them apart, but their loops, and so
+        the replays' spectra, differ; the calibration starts from the one that fits the fitting part
+        best (:func:`ssamb.closeloop.calibration.calibrate_model`). None where the start lacks the
+        scale, the law's length or its constant."""
+        keys = ("sensors.position_gain", "magnet.a_m", "magnet.k_h")
+        pri = self.priors(cfg)
+        if not all(k in start and k in pri for k in keys) or not record.usable:
+            return []
+        g0, a, k = (float(start[x]) for x in keys)
+        o = float(start.get("sensors.position_offset_m", cfg["sensors"]["position_offset_m"]))
+        lev = np.concatenate([record.channels["y"][s:e] for s, e in record.usable])
+        y_read = float(np.mean(lev)) - o
+        tol = float(pri["sensors.position_gain"]) * float(cfg["sensors"]["position_gain"])
+        out = []
+        for step in np.arange(-2.0, 2.0 + 1e-9, 0.25):
+            g = g0 + step * tol
+            if step == 0 or g <= 0:
+                continue
+            a2, k2 = one_level_family(a, k, g0, g, y_read)
+            if a2 > 0 and k2 > 0:
+                out.append({**start, "sensors.position_gain": g, "magnet.a_m": a2, "magnet.k_h": k2})
+        return out
+
     def calibration_bounds(self, record: Record, cfg: Mapping) -> dict:
         r"""The position sensor's zero :math:`o_s` is the reading of the ball at the magnet's face
         (:mod:`.physics`: reading :math:`g_s y + o_s`, the face at :math:`y = 0`), so a model whose
