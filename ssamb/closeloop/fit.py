@@ -44,7 +44,7 @@ from .comparison import Comparison, Part
 from .estimate import EstimateSettings, MapFit, Problem, map_fit
 from .models import EffectModel, combine
 
-__all__ = ["Base", "Candidate", "fit_candidate", "holdout_score", "chi2_views", "size_mask"]
+__all__ = ["Base", "Candidate", "fit_candidate", "holdout_score", "improvement_z", "chi2_views", "size_mask"]
 
 
 @dataclass
@@ -140,15 +140,25 @@ def chi2_views(cmp: Comparison, part: Part, r: np.ndarray) -> dict:
             if "view:" + v in g}
 
 
+def improvement_z(cmp: Comparison, part: Part, base: Base, pred: dict, overrides: dict, effects: list,
+                  scaled: tuple | None = None) -> float:
+    r"""How much better a model (``overrides``, ``effects``, its prediction ``pred``) fits ``part``
+    than ``base``: :math:`z = (r_0^T r_0 - r_1^T r_1) / (2\lVert r_1 - r_0\rVert)` of their whitened
+    residuals, the improvement in standard deviations of its noise (unit-variance data noise
+    along the difference of the two predictions). ``scaled``: the residuals, when computed."""
+    r0, r1 = scaled if scaled is not None else _scaled(cmp, part, base, pred, overrides, effects)
+    nd = float(np.linalg.norm(r1 - r0))
+    return float(r0 @ r0 - r1 @ r1) / (2 * nd) if nd > 0 else 0.0
+
+
 def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effects: list, n_params: int,
                   settings) -> dict:
     """Held-out comparison of a candidate (``overrides``, ``effects``, its prediction ``pred``)
     with the base model (module docstring)."""
     r0, r1 = _scaled(cmp, cmp.hold, base, pred, overrides, effects)
     d = r1 - r0
-    nd = float(np.linalg.norm(d))
     dsse = float(r0 @ r0 - r1 @ r1)
-    z = dsse / (2 * nd) if nd > 0 else 0.0
+    z = improvement_z(cmp, cmp.hold, base, pred, overrides, effects, (r0, r1))
     c0, c1 = chi2_views(cmp, cmp.hold, r0), chi2_views(cmp, cmp.hold, r1)
     per_view, fracs, worse = {}, [], []
     for v in c0:

@@ -46,7 +46,7 @@ from scipy import stats
 from .calibration import Calibration, calibrate_model, identifiability, overrides_of
 from .comparison import Comparison
 from .estimate import EstimateSettings, Problem, map_fit
-from .fit import Base, Candidate, fit_candidate, holdout_score, size_mask
+from .fit import Base, Candidate, fit_candidate, holdout_score, improvement_z, size_mask
 from .models import restart
 from .residual import compute_features
 from .signatures import claim_stat, evidence_all, rank
@@ -505,7 +505,8 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
     kept, eff = [], []
     for a, m, lo, hi in zip(out.accepted, models, cuts[:-1], cuts[1:]):
         # a local standard error and the spread between points the data cannot tell apart
-        a["theta"], a["se"] = fit.theta[lo:hi], np.hypot(fit.se_misfit[lo:hi], a.get("alias_sd", 0.0))
+        a["theta"], a["se_local"] = fit.theta[lo:hi], fit.se_misfit[lo:hi]
+        a["se"] = np.hypot(a["se_local"], a.get("alias_sd", 0.0))
         w, k = size_statistic(fit.theta[lo:hi], fit.cov_misfit[lo:hi, lo:hi], list(m.params), m.size_params)
         a["joint_size_chi2"] = w
         if w <= float(stats.chi2.isf(alpha, k)):
@@ -519,6 +520,53 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
         eff += m.build(fit.theta[lo:hi])
     out.accepted = kept
     return eff
+
+
+def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: bool) -> bool:
+    r"""The final model's accepted effects at their aliases (:attr:`ssamb.device.EffectModel.aliases`:
+    a sensor delay one whole controller sample longer or shorter), judged as a candidate effect
+    is: by the held-out improvement :func:`ssamb.closeloop.fit.improvement_z` of the model with
+    one effect moved to an alias over the final model (predictions: the mean of the comparison's
+    replays). An alias whose :math:`z` exceeds the acceptance level replaces the effect's values,
+    and the spread between aliases no longer widens the moved parameters' standard errors: the
+    data told them apart. Returns whether one moved. The joint refit is not repeated from there:
+    the held-out part judged the alias with the calibrated parameters as they are (the
+    validation page has the measured comparison).
+
+    The fits choose between aliases on the fitting part by single replays
+    (:func:`ssamb.closeloop.fit.alias_sd`), whose cost differences carry each replay's own noise,
+    which is as large as an alias's signature where the sensor does not see the PWM's ripple;
+    the held-out test is the one every effect passes to enter the model.
+    """
+    z_crit = float(stats.norm.isf(settings.alpha_accept))
+    base = Base(out.overrides, out.effects, out.final)
+    changed = False
+    for a in out.accepted:
+        m = a["model"]
+        if m.aliases is None:
+            continue
+        best = None
+        for t in m.aliases(np.asarray(a["theta"], float)):
+            t = np.clip(t, m.lower, m.upper)
+            eff = [e for b in out.accepted for e in (m.build(t) if b is a else b["model"].build(b["theta"]))]
+            pred = cmp.prediction(out.overrides, eff)
+            z = improvement_z(cmp, cmp.hold, base, pred, out.overrides, eff)
+            if z > z_crit and (best is None or z > best[0]):
+                best = (z, t, eff, pred)
+        if best is None:
+            continue
+        z, t, eff, pred = best
+        _log(progress, f"final model: {m.name} at its alias {dict(zip(m.params, t.tolist()))} improves the held-out "
+                       f"part (z {z:.1f} > {z_crit:.2f}): taken")
+        moved = t != np.asarray(a["theta"], float)
+        a["alias_sd"] = np.where(moved, 0.0, a.get("alias_sd", np.zeros(len(t))))
+        a["theta"] = t
+        a["se"] = np.hypot(a.get("se_local", a["se"]), a["alias_sd"])
+        a["alias_resolved"] = {"z": z, "params": [p for p, mv in zip(m.params, moved) if mv]}
+        out.effects, out.final = eff, pred
+        base = Base(out.overrides, out.effects, out.final)
+        changed = True
+    return changed
 
 
 def joint_start(cal: Calibration, base: Base, free: list, spare: list, effects_found: bool) -> np.ndarray:
@@ -589,6 +637,7 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
         out.overrides, out.effects = ov, eff
         out.final = cmp.prediction(ov, eff)
+        _resolve_aliases(cmp, out, settings, progress)
         ok, fails = consistency(cmp, Base(ov, eff, out.final), settings)
         out.consistent, out.failures = ok, fails
     else:
