@@ -58,9 +58,7 @@ class Base:
     calibrated parameters held at ``theta_spare`` in a candidate's first fit and freed in a
     second (:meth:`widened`). ``shown`` is the model whose residual the evidence reads, when it
     is not this one (the calibrated model with its conflicting parameters at nominal: the
-    signature of what they absorbed shows there). ``identified`` marks the free parameters the
-    calibration identified: once a candidate is accepted, the next round's fits start from its
-    values of those and from the prior mean of the others (:meth:`after`).
+    signature of what they absorbed shows there).
     """
 
     overrides: dict
@@ -71,7 +69,6 @@ class Base:
     spare: list = field(default_factory=list)
     theta_spare: np.ndarray = field(default_factory=lambda: np.zeros(0))
     shown: "Base | None" = field(default=None, repr=False)
-    identified: np.ndarray | None = None
 
     def widened(self) -> "Base":
         """The same model with the spare parameters free as well (listed after the free ones)."""
@@ -79,20 +76,12 @@ class Base:
                     np.concatenate([self.theta_free, self.theta_spare]))
 
     def after(self, cand: "Candidate") -> "Base":
-        """The base with an accepted candidate (fitted on this base or on :meth:`widened`).
-
-        Its model is the candidate's fit; the next fits start from the candidate's values of the
-        identified parameters and from the prior mean of the others. An unidentified parameter
-        moved in the candidate's fit to stand in for an effect not yet in the model (the rotor
-        mass, whose weight is a static force in y, for a static load beside a sensor delay), and
-        the estimator steps only along directions the data determine: started there, a fit
-        would keep it there and count that effect twice."""
+        """The base with an accepted candidate (fitted on this base or on :meth:`widened`)."""
         nf = len(self.free)
         th = cand.fit.theta[: cand.n_free]
         spare = th[nf:] if cand.n_free > nf else self.theta_spare
-        start = th[:nf] if self.identified is None else np.where(self.identified, th[:nf], 0.0)
-        return Base(cand.overrides, list(self.effects) + cand.effects, cand.pred, self.free, start,
-                    self.spare, spare, identified=self.identified)
+        return Base(cand.overrides, list(self.effects) + cand.effects, cand.pred, self.free, th[:nf],
+                    self.spare, spare)
 
 
 @dataclass

@@ -621,11 +621,10 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     # is judged against the calibrated model itself (the best model without it); the evidence
     # reads the residual with the conflicting parameters at nominal (what they absorbed shows)
     free = list(range(len(specs)))
-    known = np.array([cal.ident["per_parameter"][sp.key]["identified"] and sp.key not in cal.conflicts
-                      for sp in specs], bool)
-    start = np.where(known, cal.theta, 0.0) if specs else np.zeros(0)
+    start = np.array([t if (cal.ident["per_parameter"][sp.key]["identified"] and sp.key not in cal.conflicts) else 0.0
+                      for sp, t in zip(specs, cal.theta)]) if specs else np.zeros(0)
     spare = []
-    base = Base(cal.overrides(), [], out.calibrated, list(specs), start, identified=known)
+    base = Base(cal.overrides(), [], out.calibrated, list(specs), start)
     if cal.conflicts:
         reset = cal.overrides(reset_conflicts=True)
         base.shown = Base(reset, [], cmp.prediction(reset))
