@@ -124,10 +124,10 @@ def test_rows2_3_sensor_delay_with_one_or_both_axes_excited(tmp_path, axis):
     assert z <= _z_crit(), z
 
 
-ROW4 = ("the delay is right (15.10 +- 0.13 us) and the oracle passes (z 3.0), but the load is not found: fitted "
-        "before the delay it comes to -3.7 N with no significant held-out gain (z 1.0), and it is not tried again beside "
-        "the delay; the airgap (+1.0 +- 0.7 %), the DCM gain (+0.57 +- 0.24 %) and the unidentified rotor mass (its "
-        "weight is a static y force) hold it")
+ROW4 = ("the delay is right (15.10 +- 0.13 us) and the oracle passes (z 3.0), but the load is not found: "
+        "fitted before the delay it comes to -3.7 N with no significant held-out gain (z 1.0), and it is not "
+        "tried again beside the delay; the airgap (+1.0 +- 0.7 %), the DCM gain (+0.57 +- 0.24 %) and the "
+        "unidentified rotor mass (its weight is a static y force) hold it")
 
 
 @pytest.mark.parametrize("axis", [pytest.param("y", marks=_known_failure(ROW4)),
