@@ -636,8 +636,7 @@ def low_frequency_from(f: Features, layout: Layout, longer: Features, n_longer: 
     takes :math:`n G` for its DC and :math:`G/L` for its window means. A segment of a periodic
     record too short to hold two periods is a Welch frame whose lowest bins lie at
     :math:`f_s/n_{per}` and above, where a loop with integral action has far more noise than at
-    DC (a single-period held-out part of a 5 Hz multisine read its ``d_y`` DC noise at 40-120 Hz,
-    18 times the variance its replays show): its own estimate would hide a static load there.
+    DC: its own estimate would overstate the DC noise and hide a static load there.
     """
     import dataclasses
 

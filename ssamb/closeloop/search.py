@@ -522,14 +522,14 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
     return eff
 
 
-def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: bool) -> bool:
+def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: bool) -> None:
     r"""The final model's accepted effects at their aliases (:attr:`ssamb.device.EffectModel.aliases`:
     a sensor delay one whole controller sample longer or shorter), judged as a candidate effect
     is: by the held-out improvement :func:`ssamb.closeloop.fit.improvement_z` of the model with
     one effect moved to an alias over the final model (predictions: the mean of the comparison's
     replays). An alias whose :math:`z` exceeds the acceptance level replaces the effect's values,
     and the spread between aliases no longer widens the moved parameters' standard errors: the
-    data told them apart. Returns whether one moved. The joint refit is not repeated from there:
+    data told them apart. The joint refit is not repeated from there:
     the held-out part judged the alias with the calibrated parameters as they are (the
     validation page has the measured comparison).
 
@@ -540,7 +540,6 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
     """
     z_crit = float(stats.norm.isf(settings.alpha_accept))
     base = Base(out.overrides, out.effects, out.final)
-    changed = False
     for a in out.accepted:
         m = a["model"]
         if m.aliases is None:
@@ -565,8 +564,6 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
         a["alias_resolved"] = {"z": z, "params": [p for p, mv in zip(m.params, moved) if mv]}
         out.effects, out.final = eff, pred
         base = Base(out.overrides, out.effects, out.final)
-        changed = True
-    return changed
 
 
 def joint_start(cal: Calibration, base: Base, free: list, spare: list, effects_found: bool) -> np.ndarray:
@@ -637,7 +634,7 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         out.overrides, out.effects = ov, eff
         out.final = cmp.prediction(ov, eff)
         _resolve_aliases(cmp, out, settings, progress)
-        ok, fails = consistency(cmp, Base(ov, eff, out.final), settings)
+        ok, fails = consistency(cmp, Base(out.overrides, out.effects, out.final), settings)
         out.consistent, out.failures = ok, fails
     else:
         out.overrides, out.effects, out.final = cal.overrides(), [], out.calibrated
