@@ -43,6 +43,7 @@ import multiprocessing as mp
 import os
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
@@ -131,16 +132,28 @@ def _center(dev, cfg, path: str | None) -> dict:
     return out
 
 
-def _rig_config(dev, cfg, center, rng, settings=None, spread=1.0):
-    """A rig's parameters: uniform within ``spread`` prior sd of the centre, drawn until its loop is
-    stable."""
-    from ssamb.config import apply_overrides, get
-    from ssamb.maglev1d.checks import loop_poles
+def _levels(rec) -> list[float]:
+    """The readings at which the drawn rig's loop must be stable: the reference's lowest, median
+    and highest value over the usable parts, and the readings at the parts' starts."""
+    yd = np.concatenate([rec.inputs["yd"][a:b] for a, b in rec.usable])
+    y0 = [float(np.mean(rec.channels["y"][a:a + 30])) for a, _ in rec.usable]
+    return sorted(set(np.round(np.quantile(yd, [0.0, 0.5, 1.0]), 6).tolist()) | set(np.round(y0, 6).tolist()))
 
-    from ssamb.config import ConfigError
+
+def _rig_config(dev, cfg, center, rng, rec=None, true=None, spread=1.0, why=None):
+    """A rig's parameters: uniform within ``spread`` prior sd of the centre; with a record ``rec``,
+    conditioned on it (the config's ``suite`` section): the force constant and the stage's
+    full-scale voltage put the rig with its effect ``true`` in the force and command balance the
+    recording shows at its parts' starts (:meth:`Maglev1D.balanced`), and the rig is drawn again
+    when these lie more than ``suite.max_prior_sd`` prior sd from nominal, when it is no physical
+    rig, or when its linearised loop is unstable at a level the reference visits (the recorded
+    controller held the ball there). ``why`` (a Counter) counts the reasons of the draws refused."""
+    from ssamb.config import ConfigError, apply_overrides, get
+    from ssamb.maglev1d.checks import loop_poles
     from ssamb.maglev1d.config import validate
 
     pri = dev.priors(cfg)
+    sc = cfg["suite"]
     for _ in range(50):
         ov = {}
         for key, sd in pri.items():
@@ -149,16 +162,29 @@ def _rig_config(dev, cfg, center, rng, settings=None, spread=1.0):
             u = rng.uniform(-1.0, 1.0) * spread
             ov[key] = c * (1.0 + u * sd) if nom != 0 else c + u * sd
         rig = apply_overrides(cfg, ov)
+        if rec is not None:
+            ov.update(dev.balanced(rig, rec, [true] if true else [], sc["balance_span_s"]))
+            rig = apply_overrides(cfg, ov)
+            off = max(abs(ov[k] / float(get(cfg, k)) - 1.0) / pri[k] for k in ("magnet.k_h", "amplifier.v_max_v"))
+            if off > sc["max_prior_sd"]:
+                why is not None and why.update(["balance beyond the prior"])
+                continue
         try:
             validate(rig)                  # a physical rig: no negative drop, positive scales
         except ConfigError:
+            why is not None and why.update(["not physical"])
             continue
-        if loop_poles(rig, 0.005)["stable"]:
+        if rec is None:
+            stable = loop_poles(rig, 0.005)["stable"]
+        else:
+            stable = all(v["stable"] for v in dev.stable_at(rig, _levels(rec), [true] if true else []).values())
+        if stable:
             return ov, rig
+        why is not None and why.update(["loop unstable"])
     raise RuntimeError("no stable rig in 50 draws around the centre")
 
 
-def _alike(dev, rig, true, rec, drawn, seed: int) -> bool:
+def _alike(dev, rig, true, rec, drawn, seed: int, why=None) -> bool:
     """Whether the drawn rig's data levitate where the recording's ball did (the same number of
     levitated stretches) and its own model, replayed on the draw's record as the analysis replays
     it (from the states at the starts of the draw's stretches), keeps the ball off the stops in
@@ -166,8 +192,12 @@ def _alike(dev, rig, true, rec, drawn, seed: int) -> bool:
     that only the recording's own start states keep up, is no rig the analysis could be asked to
     match."""
     if len(drawn.usable) != len(rec.usable):
+        why is not None and why.update(["its data levitate on other stretches"])
         return False
-    return not any(dev.replay(rig, drawn, [true] if true else [], drawn.n, seed + j).contact for j in range(4))
+    if any(dev.replay(rig, drawn, [true] if true else [], drawn.n, seed + j).contact for j in range(4)):
+        why is not None and why.update(["its own model drops the ball on its data"])
+        return False
+    return True
 
 
 def _effect(name: str, rng) -> dict:
@@ -201,7 +231,7 @@ def _found(true: dict, rep: dict) -> list[str]:
 
 
 def run_draw(args) -> dict:
-    k, with_effect, seed, center, names, spread = args
+    k, with_effect, seed, center, names, spread, balance, only_rigs = args
     from ssamb.closeloop import analyse
     from ssamb.device import get_device
     from ssamb.io import DataError
@@ -214,22 +244,30 @@ def run_draw(args) -> dict:
     true = _effect(names[path.name][int(rng.integers(len(names[path.name])))], rng) if with_effect else None
     arrays, meta = dev.load(path)
     rec = dev.record(arrays, meta, cfg, path.name)
+    why = Counter()
     for attempt in range(20):            # a rig whose ball never levitates makes no data: draw again
-        ov, rig = _rig_config(dev, cfg, center, rng, None, spread)
+        if attempt and true and balance:  # the effect's size is part of the rig: drawn again with it
+            true = _effect(true["name"], rng)
+        ov, rig = _rig_config(dev, cfg, center, rng, rec if balance else None, true, spread, why)
         # the rig's data round (the model's replays add the rounding errors: ssamb.maglev1d.physics)
         as_rig = {**rig, "replay": {**rig["replay"], "additive_quantisers": 0}}
         out = dev.replay(as_rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
         data = {**arrays, **{c: out.channels[c] for c in dev.channels}}
         if out.contact:
+            why.update(["its data touch a stop"])
             continue
         try:
             drawn = dev.record(data, meta, cfg, path.name)
         except DataError:
+            why.update(["its data never levitate"])
             continue
-        if _alike(dev, rig, true, rec, drawn, int(rng.integers(1, 10_000))):
+        if _alike(dev, rig, true, rec, drawn, int(rng.integers(1, 10_000)), why):
             break
     else:
-        return {"draw": k, "effect": true, "recording": path.stem, "failures": ["no rig that levitates in 20 draws"]}
+        return {"draw": k, "effect": true, "recording": path.stem, "failures": ["no rig that levitates in 20 draws"],
+                "refused": dict(why)}
+    if only_rigs:
+        return {"draw": k, "effect": true, "recording": path.stem, "failures": [], "refused": dict(why), "rig": ov}
     t0 = time.perf_counter()
     try:
         rep = analyse(data, meta, cfg, device=dev)
@@ -243,7 +281,7 @@ def run_draw(args) -> dict:
             "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {})}
                       for e in rep["effects"]],
             "parameters": {key: [p["value"], p["se"], ov.get(key)] for key, p in rep["parameters"].items()},
-            "simulations": rep["timing"]["simulations"], "seconds": time.perf_counter() - t0,
+            "refused": dict(why), "simulations": rep["timing"]["simulations"], "seconds": time.perf_counter() - t0,
             "calibration_stopped_short": bool(rep.get("calibration", {}).get("stopped_short", False))}
 
 
@@ -259,6 +297,10 @@ def main() -> None:
     ap.add_argument("--spread", type=float, default=1.0,
                     help="rigs within this many prior standard deviations of the centre (1: the suite; "
                          "smaller: a diagnostic of the effect search alone)")
+    ap.add_argument("--unbalanced", action="store_true",
+                    help="rigs not conditioned on the recording's balance and levels (the suite before that)")
+    ap.add_argument("--only-rigs", action="store_true",
+                    help="draw the rigs and their data, count the refused draws, analyse nothing")
     a = ap.parse_args()
     from ssamb.closeloop.settings import settings_from_config
     from ssamb.device import get_device
@@ -284,8 +326,8 @@ def main() -> None:
         recs = sorted(why)
         where = "on every recording" if len(recs) == len(RECORDINGS) else f"on {', '.join(recs)}"
         print(f"not drawn {where} ({n}): {next(iter(why.values()))}", flush=True)
-    jobs = [(k, True, a.seed, center, names, a.spread) for k in range(a.draws)]
-    jobs += [(a.draws + k, False, a.seed, center, names, a.spread) for k in range(a.null)]
+    jobs = [(k, True, a.seed, center, names, a.spread, not a.unbalanced, a.only_rigs) for k in range(a.draws)]
+    jobs += [(a.draws + k, False, a.seed, center, names, a.spread, not a.unbalanced, a.only_rigs) for k in range(a.null)]
     t0 = time.perf_counter()
     res = []
     with mp.get_context("fork").Pool(a.processes) as pool, open(a.out, "a") as fh:
@@ -301,6 +343,12 @@ def main() -> None:
                   f"{'' if tr['visible'] or not d['effect'] else ': INVISIBLE'}]") if tr else ""
             print(f"draw {d['draw']:3d} {d['effect']['name'] if d['effect'] else 'none':18s} "
                   f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}{vs}", flush=True)
+    nodata = [d for d in res if d["failures"] == ["no rig that levitates in 20 draws"]]
+    refused = sum((Counter(d.get("refused", {})) for d in res), Counter())
+    print(f"\ndraws without data (no rig within the spread levitates on the drawn recording): {len(nodata)} of "
+          f"{len(res)}; rigs refused before each draw's rig: {sum(refused.values())} ({dict(refused)})")
+    if a.only_rigs:
+        sys.exit(0)
     eff = [d for d in res if d["effect"]]
     null = [d for d in res if not d["effect"]]
     ok = sum(not d["failures"] for d in eff)
@@ -323,12 +371,9 @@ def main() -> None:
         sel = [d for d in eff if d["effect"]["name"] == n]
         if sel:
             print(f"  {n}: {sum(not d['failures'] for d in sel)} of {len(sel)}")
-    nodata = [d for d in res if d["failures"] == ["no rig that levitates in 20 draws"]]
     alarms = sum(bool(d.get("found")) for d in null)
     print(f"noise only: {alarms} of {len(null)} declared an effect"
           f"{f' ({sum(d in nodata for d in null)} without data: no rig that levitates)' if nodata else ''}")
-    if nodata:
-        print(f"draws without data (no rig within the spread levitates on the drawn recording): {len(nodata)}")
     secs = [d.get("seconds", math.nan) for d in res]
     print(f"wall {time.perf_counter() - t0:.0f} s on {a.processes} processes; median {np.nanmedian(secs):.0f} s per "
           f"analysis; load average {os.getloadavg()[0]:.1f}")

@@ -353,3 +353,29 @@ def test_what_one_level_cannot_tell_and_a_start_that_floats_stays():
     rec = _record("constante")
     est = start_estimate({**rec.channels, "yd": rec.inputs["yd"]}, CFG)
     assert "sensors.position_gain" not in est and DEV._levitating_gain(rec, CFG, est) == est
+
+
+@pytest.mark.parametrize("effects", [[], [{"name": "saturation", "coefficient_per_a2": 0.6},
+                                          {"name": "current_offset", "offset_a": 0.02}]])
+def test_balanced_rig_holds_the_ball_with_the_recorded_current_and_command(effects):
+    from ssamb.config import apply_overrides
+    from ssamb.maglev1d import physics
+
+    rec = _record("senoidal")                       # two usable parts
+    cfg = apply_overrides(CFG, {"magnet.a_m": 0.004, "amplifier.drop_v": 1.0, "sensors.position_gain": 0.9})
+    ov = DEV.balanced(cfg, rec, effects)
+    p = physics.knobs_of(apply_overrides(cfg, ov), DEV.knobs(cfg, effects))
+    ioff = p[physics.knob_index("current_offset_a")]
+    li, lu = [], []
+    for a, b in rec.usable:
+        y, i, u = (float(np.mean(rec.channels[c][a:a + 30])) for c in ("y", "i", "u"))
+        _, ieq, ueq = physics.equilibrium(p, y)
+        li.append(np.log((ieq + ioff) / i))
+        lu.append(np.log(ueq / u))
+    assert len(li) == 2 and abs(np.mean(li)) < 1e-6 and abs(np.mean(lu)) < 1e-6
+    assert max(abs(x) for x in li + lu) < 0.05          # the two parts' balances agree within 5 %
+    # without the balance this model is off by more than that
+    p0 = physics.knobs_of(cfg, DEV.knobs(cfg, effects))
+    a = rec.usable[0][0]
+    assert abs(np.log((physics.equilibrium(p0, float(np.mean(rec.channels["y"][a:a + 30])))[1] + ioff)
+                      / np.mean(rec.channels["i"][a:a + 30]))) > 0.05
