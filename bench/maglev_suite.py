@@ -3,19 +3,26 @@
     python bench/maglev_suite.py [--draws 24] [--null 20] [--seed 20261126] [--processes 2]
                                  [--center results/rigs/maglev1d/closeloop.json] [--out suite.jsonl]
 
-Each draw takes a real recording (drawn among the five) and builds a rig that is not the model:
+Each draw takes a real recording (drawn among the five) and builds a rig that is not the model,
+conditioned on what the recording says of the real rig (the device config's ``suite`` section):
 every calibratable parameter is drawn uniformly within one prior standard deviation of the rig's
 centre (the values the device's physical checks imply on the step recording, replaced by the
-parameters the real recordings identified, from ``--center``); rigs outside the config's physical
-ranges or whose linearised loop is unstable at the operating point are drawn again, and so are
-rigs whose replay touches a stop or never levitates (such a rig cannot levitate with the rig's
-controller), and so are rigs whose data levitate on other stretches than the recording's ball or
-whose own model, replayed on the draw's record, drops the ball (:func:`_alike`). The rig gets one
-library effect with a size drawn from its range (:data:`SIZES`),
+parameters the real recordings identified, from ``--center``), then the force constant and the
+stage's full-scale voltage put the rig, with its effect, in the force and command balance the
+recording shows at the starts of its usable parts (:meth:`ssamb.maglev1d.device.Maglev1D.balanced`:
+the replay starts there from the recording's state, and a rig off that balance meets a stop within
+0.1 s). A rig is drawn again (with its effect's size) when that balance lies beyond the prior,
+when it is no physical rig, when its linearised loop is unstable at a level the reference visits,
+when its replay touches a stop or never levitates, when its data levitate on other stretches than
+the recording's ball or its own model, replayed on the draw's record, drops the ball
+(:func:`_alike`), or when its data do not show its effect (:func:`effect_shows`: the engine's own
+held-out test of the rig with the effect over the same rig without it); the reasons are counted
+(``refused``). The rig gets one library effect with a size drawn from its range (:data:`SIZES`),
 among the effects the device can identify on that recording, or none in the null draws. The
 rig's data are a replay of that rig driven by the recording's reference, from its states, with a
 seed of its own and its converters rounding as a rig's do; the analysis
 (:func:`ssamb.closeloop.analyse`) sees only the data and the published-parameter model.
+``--unbalanced --any-size`` draws the rigs as before these conditions (same draws).
 
 A draw with an effect passes when the effect is found (first in the list of effects) and its
 size is within three standard errors or 25 % of the truth; a null draw passes when no effect is
@@ -32,7 +39,9 @@ over 0.2 s blocks of the summed squared residuals, each channel scaled by the tr
 variance, level ``ALPHA``) is *invisible*: these data cannot show its effect, and it is counted
 apart, never as a find nor hidden. The oracle check tells a miss of the search from a limit of
 the data: the truth significantly better on the fitting part, which the search minimised, means
-the search stopped short of a better model it could have reached.
+the search stopped short of a better model it could have reached. The engine's own held-out test
+of the truth over the final model (:func:`held_out_z`) tells a miss the search could have avoided
+from an effect the final model's calibration absorbed.
 """
 from __future__ import annotations
 
@@ -81,13 +90,35 @@ def _prediction(dev, cfg, rec, effects, seeds) -> dict:
             "contacts": sum(bool(o.contact) for o in outs)}
 
 
-def against_truth(dev, cfg, rig, true, data, meta, rep, seed: int) -> dict:
+def _better(channels, data, p_a, p_b, a: int, b: int, fs_hz: float) -> tuple[float, float]:
+    """``p_b``'s cost over ``p_a``'s on samples ``a:b`` of ``data`` (each channel scaled by
+    ``p_a``'s residual variance) and the one-sided p-value of '``p_a`` predicts better'
+    (paired t-test over ``BLOCK_S`` blocks; 1 with fewer than 5 blocks)."""
+    from scipy import stats
+
+    d, cost_a, cost_b = 0.0, 0.0, 0.0
+    for c in channels:
+        ra = data[c][a:b] - p_a[c][a:b]
+        rb = data[c][a:b] - p_b[c][a:b]
+        v = max(float(np.var(ra)), 1e-30)
+        d = d + (rb ** 2 - ra ** 2) / v
+        cost_a += float(np.mean(ra ** 2)) / v
+        cost_b += float(np.mean(rb ** 2)) / v
+    w = int(round(BLOCK_S * fs_hz))
+    blocks = np.array([np.mean(d[k:k + w]) for k in range(0, len(d) - w + 1, w)])
+    if len(blocks) >= 5 and np.std(blocks) > 0:
+        tt = np.mean(blocks) / (np.std(blocks, ddof=1) / np.sqrt(len(blocks)))
+        pv = float(stats.t.sf(tt, len(blocks) - 1))
+    else:
+        pv = 1.0
+    return cost_b / max(cost_a, 1e-30), pv
+
+
+def against_truth(dev, cfg, rig, true, data, meta, rep, seed: int, ov: dict | None = None) -> dict:
     """The truth (``rig`` with the effect ``true``) and the analysis's final model against the
     draw's data on its fitting and held-out parts (module docstring): per part the ratio of the
     final model's cost to the truth's (1: as good) and the one-sided p-value of 'the truth
     predicts better'."""
-    from scipy import stats
-
     from ssamb.config import apply_overrides
 
     rec = dev.record(data, meta, cfg, "draw")
@@ -99,26 +130,50 @@ def against_truth(dev, cfg, rig, true, data, meta, rep, seed: int) -> dict:
     val = rep["validation"]
     for part, (t0, t1) in (("fit", val["fit_s"]), ("holdout", val["holdout_s"])):
         a, b = int(round(t0 * rec.fs_hz)), int(round(t1 * rec.fs_hz))
-        d, cost_t, cost_f = 0.0, 0.0, 0.0
-        for c in dev.channels:
-            rt = data[c][a:b] - p_true[c][a:b]
-            rf = data[c][a:b] - p_fin[c][a:b]
-            v = max(float(np.var(rt)), 1e-30)
-            d = d + (rf ** 2 - rt ** 2) / v
-            cost_t += float(np.mean(rt ** 2)) / v
-            cost_f += float(np.mean(rf ** 2)) / v
-        w = int(round(BLOCK_S * rec.fs_hz))
-        blocks = np.array([np.mean(d[k:k + w]) for k in range(0, len(d) - w + 1, w)])
-        if len(blocks) >= 5 and np.std(blocks) > 0:
-            tt = np.mean(blocks) / (np.std(blocks, ddof=1) / np.sqrt(len(blocks)))
-            pv = float(stats.t.sf(tt, len(blocks) - 1))
-        else:
-            pv = 1.0
-        out[part] = {"cost_ratio": cost_f / max(cost_t, 1e-30), "p_truth_better": pv}
+        ratio, pv = _better(dev.channels, data, p_true, p_fin, a, b, rec.fs_hz)
+        out[part] = {"cost_ratio": ratio, "p_truth_better": pv}
     out["contacts"] = {"truth": p_true["contacts"], "final": p_fin["contacts"], "of": REPLAYS}
     out["visible"] = out["holdout"]["p_truth_better"] < ALPHA
     out["search_short"] = out["fit"]["p_truth_better"] < ALPHA
+    if ov is not None:                   # the engine's own held-out test of the truth over the final model
+        out["engine"] = held_out_z(dev, cfg, data, meta, (fin.get("overrides", {}), fin.get("effects", [])),
+                                   (ov, [true] if true else []), len(true) - 1 if true else 0)
     return out
+
+
+def held_out_z(dev, cfg, data, meta, base: tuple, model: tuple, n_params: int) -> dict:
+    """The engine's own held-out test of ``model`` over ``base`` on the draw's data (each a pair
+    of config overrides and effects; :func:`ssamb.closeloop.fit.holdout_score` on the analysis's
+    split, the noise read about ``base``): ``z``, the best group's ``z_group`` and whether the
+    search would call the improvement significant (:func:`ssamb.closeloop.search.improves`)."""
+    from ssamb.closeloop.comparison import Comparison
+    from ssamb.closeloop.data import make_split
+    from ssamb.closeloop.fit import Base, holdout_score
+    from ssamb.closeloop.replay import Replayer
+    from ssamb.closeloop.search import improves
+    from ssamb.closeloop.settings import settings_from_config
+
+    st = settings_from_config(cfg, dev)
+    rec = dev.record(data, meta, cfg, "draw")
+    sp = make_split(rec, st.fit_fraction, st.discard_s, st.min_fit_s, st.min_holdout_s, "draw")
+    rp = Replayer(cfg, rec, workers=1)
+    try:
+        cmp = Comparison.build(rec, sp, rp, range(1, st.replay_seeds + 1), st)
+        cmp.calibrate_noise(base[0], base[1])
+        b = Base(dict(base[0]), list(base[1]), cmp.prediction(base[0], base[1]))
+        hs = holdout_score(cmp, b, cmp.prediction(model[0], model[1]), dict(model[0]), list(model[1]), n_params, st)
+    finally:
+        rp.close()
+    return {"z": float(hs["z"]), "z_group": float(hs["z_group"]), "group": hs["group"],
+            "significant": bool(improves(hs, st))}
+
+
+def effect_shows(dev, cfg, ov: dict, true: dict, data, meta) -> dict:
+    """Whether the drawn rig's data show its effect at the drawn size: the rig with the effect
+    improves the held-out part significantly over the same rig without it, by the engine's own
+    test (:func:`held_out_z`): a model the search could find at best. The truth alone decides
+    it, never the analysis."""
+    return held_out_z(dev, cfg, data, meta, (ov, []), (ov, [true]), len(true) - 1)
 
 
 def _center(dev, cfg, path: str | None) -> dict:
@@ -231,7 +286,7 @@ def _found(true: dict, rep: dict) -> list[str]:
 
 
 def run_draw(args) -> dict:
-    k, with_effect, seed, center, names, spread, balance, only_rigs = args
+    k, with_effect, seed, center, names, spread, balance, only_rigs, shown = args
     from ssamb.closeloop import analyse
     from ssamb.device import get_device
     from ssamb.io import DataError
@@ -244,7 +299,7 @@ def run_draw(args) -> dict:
     true = _effect(names[path.name][int(rng.integers(len(names[path.name])))], rng) if with_effect else None
     arrays, meta = dev.load(path)
     rec = dev.record(arrays, meta, cfg, path.name)
-    why = Counter()
+    why, shows = Counter(), None
     for attempt in range(20):            # a rig whose ball never levitates makes no data: draw again
         if attempt and true and balance:  # the effect's size is part of the rig: drawn again with it
             true = _effect(true["name"], rng)
@@ -261,13 +316,21 @@ def run_draw(args) -> dict:
         except DataError:
             why.update(["its data never levitate"])
             continue
-        if _alike(dev, rig, true, rec, drawn, int(rng.integers(1, 10_000)), why):
-            break
+        if not _alike(dev, rig, true, rec, drawn, int(rng.integers(1, 10_000)), why):
+            continue
+        if true and shown:
+            shows = effect_shows(dev, cfg, ov, true, data, meta)
+            if not shows["significant"]:
+                why.update(["its effect does not show in its data"])
+                continue
+        break
     else:
-        return {"draw": k, "effect": true, "recording": path.stem, "failures": ["no rig that levitates in 20 draws"],
-                "refused": dict(why)}
+        small = why.get("its effect does not show in its data", 0) > 0
+        return {"draw": k, "effect": true, "recording": path.stem, "refused": dict(why),
+                "failures": ["no rig that levitates" + (" and shows its effect" if small else "") + " in 20 draws"]}
     if only_rigs:
-        return {"draw": k, "effect": true, "recording": path.stem, "failures": [], "refused": dict(why), "rig": ov}
+        return {"draw": k, "effect": true, "recording": path.stem, "failures": [], "refused": dict(why), "rig": ov,
+                "shows": shows}
     t0 = time.perf_counter()
     try:
         rep = analyse(data, meta, cfg, device=dev)
@@ -275,13 +338,14 @@ def run_draw(args) -> dict:
         return {"draw": k, "effect": true, "recording": path.stem, "failures": [f"crash: {type(exc).__name__}: {exc}"]}
     fails = _found(true, rep) if true else ([f"effects declared: {[e['name'] for e in rep['effects']]}"]
                                             if rep["effects"] else [])
-    truth = against_truth(dev, cfg, rig, true, data, meta, rep, int(rng.integers(1, 10_000)))
+    truth = against_truth(dev, cfg, rig, true, data, meta, rep, int(rng.integers(1, 10_000)), ov)
     return {"draw": k, "effect": true, "recording": path.stem, "rig": ov, "failures": fails, "truth": truth,
             "summary": rep.get("summary", ""),
             "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {})}
                       for e in rep["effects"]],
             "parameters": {key: [p["value"], p["se"], ov.get(key)] for key, p in rep["parameters"].items()},
-            "refused": dict(why), "simulations": rep["timing"]["simulations"], "seconds": time.perf_counter() - t0,
+            "refused": dict(why), "shows": shows, "simulations": rep["timing"]["simulations"],
+            "seconds": time.perf_counter() - t0,
             "calibration_stopped_short": bool(rep.get("calibration", {}).get("stopped_short", False))}
 
 
@@ -299,6 +363,8 @@ def main() -> None:
                          "smaller: a diagnostic of the effect search alone)")
     ap.add_argument("--unbalanced", action="store_true",
                     help="rigs not conditioned on the recording's balance and levels (the suite before that)")
+    ap.add_argument("--any-size", action="store_true",
+                    help="keep an effect whose size its rig's data do not show (effect_shows)")
     ap.add_argument("--only-rigs", action="store_true",
                     help="draw the rigs and their data, count the refused draws, analyse nothing")
     a = ap.parse_args()
@@ -326,8 +392,9 @@ def main() -> None:
         recs = sorted(why)
         where = "on every recording" if len(recs) == len(RECORDINGS) else f"on {', '.join(recs)}"
         print(f"not drawn {where} ({n}): {next(iter(why.values()))}", flush=True)
-    jobs = [(k, True, a.seed, center, names, a.spread, not a.unbalanced, a.only_rigs) for k in range(a.draws)]
-    jobs += [(a.draws + k, False, a.seed, center, names, a.spread, not a.unbalanced, a.only_rigs) for k in range(a.null)]
+    opts = (a.spread, not a.unbalanced, a.only_rigs, not a.any_size)
+    jobs = [(k, True, a.seed, center, names, *opts) for k in range(a.draws)]
+    jobs += [(a.draws + k, False, a.seed, center, names, *opts) for k in range(a.null)]
     t0 = time.perf_counter()
     res = []
     with mp.get_context("fork").Pool(a.processes) as pool, open(a.out, "a") as fh:
@@ -340,10 +407,12 @@ def main() -> None:
                   f"(p {tr['fit']['p_truth_better']:.2g}), "
                   f"held out {tr['holdout']['cost_ratio']:.3f} (p {tr['holdout']['p_truth_better']:.2g})"
                   f"; stop hit by truth {tr['contacts']['truth']}, final {tr['contacts']['final']} of {REPLAYS}"
+                  f"; engine's held-out z of the truth over the final model {tr['engine']['z']:.1f}"
+                  f" (group {tr['engine']['group']} {tr['engine']['z_group']:.1f})"
                   f"{'' if tr['visible'] or not d['effect'] else ': INVISIBLE'}]") if tr else ""
             print(f"draw {d['draw']:3d} {d['effect']['name'] if d['effect'] else 'none':18s} "
                   f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}{vs}", flush=True)
-    nodata = [d for d in res if d["failures"] == ["no rig that levitates in 20 draws"]]
+    nodata = [d for d in res if d["failures"] and d["failures"][0].startswith("no rig that levitates")]
     refused = sum((Counter(d.get("refused", {})) for d in res), Counter())
     print(f"\ndraws without data (no rig within the spread levitates on the drawn recording): {len(nodata)} of "
           f"{len(res)}; rigs refused before each draw's rig: {sum(refused.values())} ({dict(refused)})")
@@ -358,6 +427,15 @@ def main() -> None:
     inv = [d for d in judged if not d["truth"]["visible"]]
     ok_vis = sum(not d["failures"] for d in vis)
     short = [d for d in vis if d["failures"] and d["truth"]["search_short"]]
+    ev = [d for d in judged if d["truth"]["engine"]["significant"]]
+    print(f"  the truth beats the final model on the engine's own held-out test: {len(ev)} (found "
+          f"{sum(not d['failures'] for d in ev)}); not: {len(judged) - len(ev)} (the final model's calibration "
+          f"absorbs the effect; found {sum(not d['failures'] for d in judged if d not in ev)})")
+    sh = [d for d in eff if d.get("shows")]
+    if sh:
+        print(f"  each effect's own held-out z over its rig without it (engine's test): median "
+              f"{np.median([d['shows']['z'] for d in sh]):.1f} ({min(d['shows']['z'] for d in sh):.1f}-"
+              f"{max(d['shows']['z'] for d in sh):.1f})")
     print(f"  visible in the data (the truth predicts the held-out part better than the final model, p < {ALPHA:g}): "
           f"{len(vis)}; found {ok_vis} of them ({100 * ok_vis / max(len(vis), 1):.0f} %)")
     print(f"  invisible (these data cannot show the effect beyond the final model): {len(inv)} "
