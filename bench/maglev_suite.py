@@ -285,9 +285,27 @@ def _found(true: dict, rep: dict) -> list[str]:
     return fails
 
 
-def run_draw(args) -> dict:
-    k, with_effect, seed, center, names, spread, balance, only_rigs, shown = args
-    from ssamb.closeloop import analyse
+def drawable(dev, cfg, settings) -> tuple[dict, dict]:
+    """Per recording's file name the effects drawn there (identifiable on it, with a size range),
+    and per effect the recordings it is not drawn on, with the device's reason."""
+    names, unidentifiable = {}, {}
+    for path in RECORDINGS:
+        arrays, meta = dev.load(path)
+        rec = dev.record(arrays, meta, cfg, path.name)
+        names[path.name] = []
+        for n in dev.library:
+            why = dev.effect_model(n, {}, rec, settings)
+            if isinstance(why, str):
+                unidentifiable.setdefault(n, {})[path.stem.split("_")[1]] = why
+            elif n in SIZES:
+                names[path.name].append(n)
+    return names, unidentifiable
+
+
+def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, shown=True) -> dict:
+    """Draw ``k``'s recording, effect, rig and data (module docstring): a dict with ``path``,
+    ``true``, ``ov``, ``rig``, ``data``, ``meta``, ``refused`` and ``shows``; ``data`` is None when
+    no rig in 20 levitates (``failure`` says why)."""
     from ssamb.device import get_device
     from ssamb.io import DataError
 
@@ -326,10 +344,26 @@ def run_draw(args) -> dict:
         break
     else:
         small = why.get("its effect does not show in its data", 0) > 0
-        return {"draw": k, "effect": true, "recording": path.stem, "refused": dict(why),
-                "failures": ["no rig that levitates" + (" and shows its effect" if small else "") + " in 20 draws"]}
+        return {"path": path, "true": true, "refused": dict(why), "data": None,
+                "failure": "no rig that levitates" + (" and shows its effect" if small else "") + " in 20 draws"}
+    return {"path": path, "true": true, "ov": ov, "rig": rig, "data": data, "meta": meta, "refused": dict(why),
+            "shows": shows, "rng": rng}
+
+
+def run_draw(args) -> dict:
+    k, with_effect, seed, center, names, spread, balance, only_rigs, shown = args
+    from ssamb.closeloop import analyse
+    from ssamb.device import get_device
+
+    dev = get_device("maglev1d")
+    cfg = dev.default_config()
+    dr = make_draw(k, with_effect, seed, center, names, spread, balance, shown)
+    path, true, why = dr["path"], dr["true"], dr["refused"]
+    if dr["data"] is None:
+        return {"draw": k, "effect": true, "recording": path.stem, "refused": why, "failures": [dr["failure"]]}
+    ov, rig, data, meta, shows, rng = dr["ov"], dr["rig"], dr["data"], dr["meta"], dr["shows"], dr["rng"]
     if only_rigs:
-        return {"draw": k, "effect": true, "recording": path.stem, "failures": [], "refused": dict(why), "rig": ov,
+        return {"draw": k, "effect": true, "recording": path.stem, "failures": [], "refused": why, "rig": ov,
                 "shows": shows}
     t0 = time.perf_counter()
     try:
@@ -344,7 +378,7 @@ def run_draw(args) -> dict:
             "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {})}
                       for e in rep["effects"]],
             "parameters": {key: [p["value"], p["se"], ov.get(key)] for key, p in rep["parameters"].items()},
-            "refused": dict(why), "shows": shows, "simulations": rep["timing"]["simulations"],
+            "refused": why, "shows": shows, "simulations": rep["timing"]["simulations"],
             "seconds": time.perf_counter() - t0,
             "calibration_stopped_short": bool(rep.get("calibration", {}).get("stopped_short", False))}
 
@@ -374,17 +408,7 @@ def main() -> None:
     dev = get_device("maglev1d")
     cfg = dev.default_config()
     settings = settings_from_config(cfg, dev)
-    names, unidentifiable = {}, {}
-    for path in RECORDINGS:
-        arrays, meta = dev.load(path)
-        rec = dev.record(arrays, meta, cfg, path.name)
-        names[path.name] = []
-        for n in dev.library:
-            why = dev.effect_model(n, {}, rec, settings)
-            if isinstance(why, str):
-                unidentifiable.setdefault(n, {})[path.stem.split("_")[1]] = why
-            elif n in SIZES:
-                names[path.name].append(n)
+    names, unidentifiable = drawable(dev, cfg, settings)
     center = _center(dev, cfg, a.center)
     drawn = sorted({n for v in names.values() for n in v})
     print(f"effects drawn: {', '.join(drawn)}", flush=True)
