@@ -181,7 +181,7 @@ SMOKE_FIXTURES = ("smoke_workdir",)
 #: fixtures of module scope shared by several tests and costly to make: with pytest-xdist the
 #: tests that use one run on the same worker, which makes it once (the smoke workflow is shared
 #: between the workers by its folder: the tests only read it)
-SHARED_FIXTURES = ("written", "rig_pair", "heavier_rig", "chain", "workflow", "data", "model", "plant_and_physics",
+SHARED_FIXTURES = ("row5", "rig_pair", "heavier_rig", "chain", "workflow", "data", "model", "plant_and_physics",
                    "pid", "known")
 _CONFIG = None
 #: the smoke runs this process started (it reaps them)
@@ -284,6 +284,19 @@ def _smoke(name: str) -> Path:
     run = _run(name)
     run.start()                             # collected another way: start it now (no-op if started)
     return run.result()
+
+
+@pytest.fixture(scope="session")
+def row5(tmp_path_factory) -> dict:
+    """Row 5 of issue 23's table (tests/rowcases.py: a 15 us y sensor delay and a -4 N y load, a
+    multisine on both axes), analysed once per session and written as the command line writes
+    it: ``{"report", "oracle_z", "out"}`` (``out``: the folder with ``closeloop.json`` and the
+    figures). The row's test judges the analysis, the format tests read what it wrote."""
+    from rowcases import DELAY_AND_LOAD, analysed, multisine
+
+    tmp = tmp_path_factory.mktemp("row5")
+    rep, z = analysed(tmp, multisine("both"), DELAY_AND_LOAD, workers=REPLAY_WORKERS, out=tmp / "out")
+    return {"report": rep, "oracle_z": z, "out": tmp / "out"}
 
 
 @pytest.fixture(scope="session")

@@ -549,3 +549,31 @@ def test_data_implied_limits_narrow_the_bounds_of_a_calibration():
     low = calibration_problem(bounded(parameter_specs(cfg, {"a.gain": 0.1, "a.zero": 1.0}),
                                       {"a.gain": (None, 1.0), "a.zero": (-1.5, -1.0)}), None)
     assert low.upper == pytest.approx([-0.5, -1.0]) and low.lower == pytest.approx([-0.9, -1.5])
+
+
+def test_a_fit_whose_steps_no_longer_lower_the_cost_stops():
+    """A residual with a cusp at its optimum (:math:`r = c\\,\\mathrm{sign}(x)\\sqrt{|x|}` plus a
+    misfit no parameter explains, far above the noise floor): the Gauss-Newton steps overshoot
+    across the cusp and the cost no longer falls. With ``progress_window`` 3 the fit stops once
+    three steps lowered the cost by less than its noise, not converged, at a cost within that
+    noise of where the whole budget ends (``progress_window`` 0), for fewer replays."""
+    from ssamb.closeloop.estimate import _margin
+
+    N = 60
+    col = np.linspace(-30.0, 30.0, N)
+    off = np.where(np.arange(N) % 2 == 0, 8.0, -8.0)
+
+    def evaluate(theta, seed):
+        x = theta[0] - 3.0
+        return col * np.sign(x) * np.sqrt(abs(x)) + off + 0.3 * np.random.default_rng(seed).standard_normal(N)
+
+    def prob():
+        return Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.1]), np.array([-5.0]), np.array([10.0]),
+                       evaluate, start=np.array([0.0]))
+    full = map_fit(prob(), EstimateSettings(progress_window=0))
+    cut = map_fit(prob(), EstimateSettings(progress_window=3))
+    assert not any(h.get("no_progress") for h in full.history)
+    assert any(h.get("no_progress") for h in cut.history) and not cut.converged
+    assert cut.evaluations < 0.7 * full.evaluations
+    assert abs(cut.chi2 - full.chi2) < _margin(N, 0.09 / 4, full.chi2)
+    assert cut.theta[0] == pytest.approx(3.0, abs=0.05)

@@ -35,7 +35,7 @@ from ..io import DataError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["analyse", "run_closeloop", "DataError"]
+__all__ = ["analyse", "run_closeloop", "write_analysis", "DataError"]
 
 
 def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", progress: bool = False,
@@ -147,24 +147,36 @@ def run_closeloop(data_path, out_dir, config=None, progress: bool = True, worker
         The ``closeloop.json`` content.
     """
     from ..device import get_device
-    from ..io import check_output_dir, replace_dir, write_json
-    from .figures import make_figures
-
-    def owned(p: Path) -> bool:
-        return p.is_file() and (p.name == "closeloop.json" or p.suffix == ".png")
+    from ..io import check_output_dir
 
     out_dir = Path(out_dir)
-    check_output_dir(out_dir, owned, force)
+    check_output_dir(out_dir, _owned, force)
     dev = get_device(device)
     cfg = dict(config) if isinstance(config, Mapping) else dev.load_config(config)
     arrays, meta = dev.load(data_path)
     report, art = _analyse(arrays, meta, cfg, source=str(data_path), progress=progress, workers=workers, device=dev)
+    return write_analysis(report, art, out_dir)
+
+
+def _owned(p: Path) -> bool:
+    """A file an analysis writes: ``closeloop.json`` or a figure."""
+    return p.is_file() and (p.name == "closeloop.json" or p.suffix == ".png")
+
+
+def write_analysis(report: dict, art: Mapping, out_dir) -> dict:
+    """Write an analysis (:func:`_analyse`'s report and artefacts) to ``out_dir``: the figures
+    and ``closeloop.json``, drawn into a fresh temporary directory beside ``out_dir`` that then
+    replaces it whole (:func:`ssamb.io.replace_dir`). Returns the report with its ``figures``."""
+    from ..io import replace_dir, write_json
+    from .figures import make_figures
+
+    out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}."))
     try:
         report["figures"] = make_figures(art, report, tmp)
         write_json(tmp / "closeloop.json", report)
-        replace_dir(tmp, out_dir, owned)
+        replace_dir(tmp, out_dir, _owned)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return report

@@ -131,6 +131,15 @@ class EstimateSettings:
         widen its steps, ``max_refresh``; ``short_iter`` 0: neither, as for a candidate's fit, a
         screen on a base that misfits by design); a fit that ends unconverged with it still
         holding has *stopped short* (:attr:`MapFit.stopped_short`), and says so.
+    progress_window : int
+        The fit stops when the cost at its centre has not fallen by more than the anchors' noise
+        (:func:`_margin`, two standard deviations of the difference of two anchors at that cost)
+        over the last ``progress_window`` steps it tried (0: never): the surrogate's steps no
+        longer lower the cost, so further iterations only move the centre about within the
+        cost's noise (a model that lacks an effect the data show keeps proposing steps its
+        linear surrogate promises and the replays do not deliver). The fit has not converged
+        (its last step joins its covariance) but rests at a point no step of its surrogate
+        improves by more than the noise: a local optimum within the cost's resolution.
     design_seed : int
         Which orthogonal array the design draws (:func:`_pairs`): 0, the first ``p`` columns of
         the Hadamard matrix in the parameters' order; another value, columns, signs and rows drawn
@@ -167,6 +176,7 @@ class EstimateSettings:
     short_iter: int = 8
     max_refresh: int = 2
     design_seed: int = 0
+    progress_window: int = 3
 
 
 @dataclass
@@ -783,6 +793,12 @@ def _unmoved(prob: Problem, theta: np.ndarray, lam: np.ndarray, C: np.ndarray, i
                   stopped_short=True, infeasible=infeasible)
 
 
+def _no_progress(costs: list, window: int, margin: float) -> bool:
+    """True when the last of ``costs`` (the centre's cost at each step tried) is not below the one
+    ``window`` steps earlier by more than ``margin``."""
+    return window > 0 and len(costs) > window and costs[-1 - window] - costs[-1] < margin
+
+
 def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callable | None = None) -> MapFit:
     """Estimate ``prob`` (see module docstring)."""
     s = settings or EstimateSettings()
@@ -814,6 +830,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     rhos = [float(np.mean(C.var(axis=0, ddof=1)))]
     a, trust, history, converged, replicates, probes, refresh, widened = C.mean(axis=0), 1.0, [], False, 0, 0, 0, 0
     d = np.zeros(len(theta))
+    tried: list = []                    # the centre's cost at each step tried
 
     def floor() -> float:
         # the cost the noise alone gives: unit data noise per whitened entry, and the anchor's
@@ -899,6 +916,12 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
                         f"{', '.join(names)} x{s.probe_growth:g}, pairs again")
                 continue
             converged = True
+            break
+        tried.append(float(a @ a))
+        if _no_progress(tried, s.progress_window, _margin(len(a), rho / max(s.centre_runs, 1), float(a @ a))):
+            history[-1]["no_progress"] = True
+            if log is not None:
+                log(f"  no progress: {s.progress_window} steps lowered the cost by less than its noise")
             break
         k += 1
         # the step tried, in units of the trust region (max_step steps h per coordinate)

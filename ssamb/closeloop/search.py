@@ -321,6 +321,7 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
     cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations), short_iter=0)
     cand = fit_candidate(cmp, base, models, cand_est, seed0, step_rel=settings.calibration_step_rel,
                          log=(lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
+    _candidate_alias(cmp, base, cand, settings, (lambda m: _log(progress, f"    {'+'.join(names)} " + m)))
     _judge(cand, cmp, base, ev, ft, settings, measured_contact)
     th = dict(zip(cand.model.params, cand.fit.theta[cand.n_free:].tolist())) if cand.fit else {}
     sc = cand.score
@@ -522,14 +523,57 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
     return eff
 
 
+def _better_alias(cmp: Comparison, overrides: dict, effects: list, pred: dict, model, theta: np.ndarray, build,
+                  z_crit: float):
+    """The alias of an effect at ``theta`` (:attr:`ssamb.device.EffectModel.aliases`) that fits the
+    held-out part better than ``theta`` by more than ``z_crit`` (:func:`ssamb.closeloop.fit.improvement_z`
+    of the model with the effect moved over the model ``overrides``, ``effects``, ``pred``), the best
+    such: ``(z, alias, effects, prediction)``, or None. ``build(alias)``: the model's whole effect
+    list with the effect at the alias."""
+    base = Base(overrides, effects, pred)
+    best = None
+    for t in model.aliases(np.asarray(theta, float)):
+        t = np.clip(t, model.lower, model.upper)
+        eff = build(t)
+        p = cmp.prediction(overrides, eff)
+        z = improvement_z(cmp, cmp.hold, base, p, overrides, eff)
+        if z > z_crit and (best is None or z > best[0]):
+            best = (z, t, eff, p)
+    return best
+
+
+def _candidate_alias(cmp: Comparison, base: Base, cand: Candidate, settings, log) -> None:
+    """A single-effect candidate moved to an alias of its fit that fits the held-out part
+    significantly better (:func:`_better_alias`), before it is judged: the fit chooses between
+    aliases on the fitting part by single replays (:func:`ssamb.closeloop.fit.alias_sd`), whose noise
+    can be as large as an alias's signature, and an effect judged at the wrong alias (a delay on an
+    axis one controller sample off) makes views worse that the right one explains."""
+    if cand.fit is None or len(cand.models) != 1 or cand.model.aliases is None:
+        return
+    k, m = cand.n_free, cand.model
+    full = list(base.effects) + list(cand.effects)
+    best = _better_alias(cmp, cand.overrides, full, cand.pred, m, cand.fit.theta[k:],
+                         lambda t: list(base.effects) + m.build(t), float(stats.norm.isf(settings.alpha_accept)))
+    if best is None:
+        return
+    z, t, eff, pred = best
+    moved = t != cand.fit.theta[k:]
+    cand.fit.theta = np.concatenate([cand.fit.theta[:k], t])
+    cand.effects, cand.pred = eff[len(base.effects):], pred
+    if cand.alias_sd is not None:
+        cand.alias_sd = np.where(moved, 0.0, cand.alias_sd)
+    if log is not None:
+        log(f"at its alias {dict(zip(m.params, t.tolist()))}: the held-out part fits better (z {z:.1f})")
+
+
 def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: bool) -> None:
     r"""The final model's accepted effects at their aliases (:attr:`ssamb.device.EffectModel.aliases`:
     a sensor delay one whole controller sample longer or shorter), judged as a candidate effect
     is: by the held-out improvement :func:`ssamb.closeloop.fit.improvement_z` of the model with
     one effect moved to an alias over the final model (predictions: the mean of the comparison's
-    replays). An alias whose :math:`z` exceeds the acceptance level replaces the effect's values,
-    and the spread between aliases no longer widens the moved parameters' standard errors: the
-    data told them apart. The joint refit is not repeated from there:
+    replays, :func:`_better_alias`). An alias whose :math:`z` exceeds the acceptance level replaces
+    the effect's values, and the spread between aliases no longer widens the moved parameters'
+    standard errors: the data told them apart. The joint refit is not repeated from there:
     the held-out part judged the alias with the calibrated parameters as they are (the
     validation page has the measured comparison).
 
@@ -539,19 +583,14 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
     the held-out test is the one every effect passes to enter the model.
     """
     z_crit = float(stats.norm.isf(settings.alpha_accept))
-    base = Base(out.overrides, out.effects, out.final)
     for a in out.accepted:
         m = a["model"]
         if m.aliases is None:
             continue
-        best = None
-        for t in m.aliases(np.asarray(a["theta"], float)):
-            t = np.clip(t, m.lower, m.upper)
-            eff = [e for b in out.accepted for e in (m.build(t) if b is a else b["model"].build(b["theta"]))]
-            pred = cmp.prediction(out.overrides, eff)
-            z = improvement_z(cmp, cmp.hold, base, pred, out.overrides, eff)
-            if z > z_crit and (best is None or z > best[0]):
-                best = (z, t, eff, pred)
+        best = _better_alias(cmp, out.overrides, out.effects, out.final, m, a["theta"],
+                             lambda t, a=a, m=m: [e for b in out.accepted
+                                                  for e in (m.build(t) if b is a else b["model"].build(b["theta"]))],
+                             z_crit)
         if best is None:
             continue
         z, t, eff, pred = best
@@ -563,7 +602,6 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
         a["se"] = np.hypot(a.get("se_local", a["se"]), a["alias_sd"])
         a["alias_resolved"] = {"z": z, "params": [p for p, mv in zip(m.params, moved) if mv]}
         out.effects, out.final = eff, pred
-        base = Base(out.overrides, out.effects, out.final)
 
 
 def joint_start(cal: Calibration, base: Base, free: list, spare: list, effects_found: bool) -> np.ndarray:
@@ -663,6 +701,7 @@ def optimum_of(fit, tol: float) -> dict:
     steps = [h["step_norm"] for h in fit.history if "step_norm" in h]
     last = steps[-1] if steps else 0.0
     stalled = any(h.get("stalled") for h in fit.history)
+    rest = any(h.get("no_progress") for h in fit.history)
     if fit.converged:
         how = (f"the joint refit converged: its last Gauss-Newton step was {last:.2g} posterior standard deviations "
                f"per parameter (stop at {tol:g}) after {fit.iterations} iterations")
@@ -670,8 +709,13 @@ def optimum_of(fit, tol: float) -> dict:
         how = (f"the joint refit did NOT converge: it stalled, its surrogate asking for a step of {last:.2g} posterior "
                f"standard deviations per parameter that no shorter step it tried improved: the fit is a local optimum "
                f"of its trust region only")
+    elif rest:
+        how = (f"the joint refit did NOT converge in its parameters (its surrogate still asks for a step of {last:.2g} "
+               f"posterior standard deviations per parameter), but its last steps lowered the cost by less than the "
+               f"cost's noise: a local optimum within that noise; the step is added to the reported covariance")
     else:
         how = (f"the joint refit did NOT converge: its iterations ran out with a step of {last:.2g} posterior standard "
                f"deviations per parameter (stop at {tol:g}); the step is added to the reported covariance")
-    return {"converged": bool(fit.converged), "stalled": bool(stalled), "last_step_posterior_sd": float(last),
+    return {"converged": bool(fit.converged), "stalled": bool(stalled), "no_progress": bool(rest),
+            "last_step_posterior_sd": float(last),
             "tolerance": float(tol), "iterations": int(fit.iterations), "simulations": int(fit.evaluations), "how": how}
