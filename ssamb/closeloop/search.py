@@ -547,7 +547,9 @@ def _candidate_alias(cmp: Comparison, base: Base, cand: Candidate, settings, log
     significantly better (:func:`_better_alias`), before it is judged: the fit chooses between
     aliases on the fitting part by single replays (:func:`ssamb.closeloop.fit.alias_sd`), whose noise
     can be as large as an alias's signature, and an effect judged at the wrong alias (a delay on an
-    axis one controller sample off) makes views worse that the right one explains."""
+    axis one controller sample off) makes views worse that the right one explains. The held-out
+    part moves the candidate only to a point its own test tells apart from the fit (``alpha_accept``);
+    between points it cannot tell apart the fit stays."""
     if cand.fit is None or len(cand.models) != 1 or cand.model.aliases is None:
         return
     k, m = cand.n_free, cand.model
