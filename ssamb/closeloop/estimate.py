@@ -69,7 +69,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["Problem", "MapFit", "map_fit", "best_fit", "drops_and_cost", "EstimateSettings"]
+__all__ = ["Problem", "MapFit", "map_fit", "best_fit", "common_seeds_fit", "drops_and_cost", "EstimateSettings"]
 
 
 @dataclass(frozen=True)
@@ -146,6 +146,23 @@ class EstimateSettings:
         with it. An arbitrary choice, like the order of the parameters was: an estimate that moves
         with it has not converged, and its spread over a few values is the path's share of the
         uncertainty (``bench/maglev_spread.py``).
+    common_seeds : int
+        0 (default): none. Otherwise :func:`best_fit` first solves the *sample-average* problem
+        from the start (:func:`common_seeds_fit`) and its Gauss-Newton fits start where that ends:
+        the mean residual of ``common_seeds`` replays with the same seeds at every point,
+
+        .. math:: \bar r_S(\theta) = \frac{1}{S}\sum_{s=1}^{S} r(\theta, s),
+
+        is a deterministic function of :math:`\theta`, smooth where a seeded replay is (the ball's
+        additive quantisers), whose minimiser beside the prior's rows is found by a standard
+        trust-region least-squares solver with fine finite differences. It is the noise-free
+        problem up to one realisation of the replays' noise, :math:`\bar\varepsilon_S`, shared by
+        every point: comparing two points never compares two realisations. Where the cost lies in a
+        narrow curved valley (the force balance: a few per cent of one parameter moves the cost by
+        orders of magnitude) the surrogate's finite differences over one tolerance cannot follow it.
+        A device whose replays are not smooth in the parameters (rounding) must keep 0.
+    common_seeds_evaluations : int
+        The most residual evaluations (each ``common_seeds`` replays) of that solve.
     max_refresh : int
         A fit that stalls (trust region below ``min_trust``) while its cost is far above the floor
         halves its finite-difference steps and redoes the design at the same centre, at most this
@@ -177,6 +194,8 @@ class EstimateSettings:
     max_refresh: int = 2
     design_seed: int = 0
     progress_window: int = 3
+    common_seeds: int = 0
+    common_seeds_evaluations: int = 200
 
 
 @dataclass
@@ -1011,6 +1030,8 @@ def best_fit(prob: Problem, settings: EstimateSettings | None = None, restarts: 
     import dataclasses
 
     s = settings or EstimateSettings()
+    if s.common_seeds > 0 and prob.evaluate is not None:
+        prob = dataclasses.replace(prob, start=common_seeds_fit(prob, s, log))
     if restarts <= 1:
         return map_fit(prob, s, log), []
     step0 = np.asarray(prob.step, float).copy()
@@ -1029,3 +1050,58 @@ def best_fit(prob: Problem, settings: EstimateSettings | None = None, restarts: 
         log(f"best of {restarts} fits: {best + 1} (" + "; ".join(
             f"{d['drops']} drops, cost {d['cost']:.4g}" for d in scores) + ")")
     return fits[best], [scores[best]] + [d for j, d in enumerate(scores) if j != best]
+
+
+def common_seeds_fit(prob: Problem, settings: EstimateSettings, log: Callable | None = None) -> np.ndarray:
+    r"""The start moved to the minimiser of the sample-average problem (:class:`EstimateSettings`
+    ``common_seeds``): ``scipy.optimize.least_squares`` (trust region, bounds) on
+
+    .. math:: \big[(1 + n_d(\theta))\,\bar r_S(\theta),\; (\theta - \theta_0)/\sigma_p\big]
+
+    in units of the parameters' scale (prior standard deviation, else step), with
+    :math:`\bar r_S` the mean of the feasible ones of ``common_seeds`` replays on fixed seeds and
+    :math:`n_d` the number of infeasible ones (a replay that drops the body is no finite
+    difference of the cost: the factor makes every step toward more drops a worse one, none
+    floating a cost above any that floats). The solution replaces the start only when it is no
+    worse on ``2 centre_runs`` fresh seeds (:func:`drops_and_cost`: fewer drops, then a lower
+    cost): the fresh seeds judge it by the problem's noise, not by the realisation it was
+    fitted to.
+
+    Returns
+    -------
+    numpy.ndarray
+        The start for the Gauss-Newton fits.
+    """
+    from scipy.optimize import least_squares
+
+    s = settings
+    scale = _scale(prob)
+    theta0 = np.asarray(prob.theta0, float)
+    start = np.clip(np.asarray(theta0 if prob.start is None else prob.start, float), prob.lower, prob.upper)
+    sd = np.asarray(prob.prior_sd, float)
+    has = np.isfinite(sd)
+    seeds = [prob.seed0 + 800_000 + j for j in range(int(s.common_seeds))]
+
+    def fun(x):
+        th = x * scale
+        rs = prob.batch([(th, sd_) for sd_ in seeds])
+        ok = [r for r in rs if np.all(np.isfinite(r))]
+        prior = (th - theta0)[has] / sd[has]
+        if not ok:                  # nothing floats: above any cost of a point where something does
+            return np.concatenate([np.full(len(rs[0]), 1e4), prior])
+        return np.concatenate([np.mean(ok, axis=0) * (1.0 + len(rs) - len(ok)), prior])
+
+    lo, hi = prob.lower / scale, prob.upper / scale
+    x0 = np.clip(start / scale, lo, hi)
+    res = least_squares(fun, x0, bounds=(lo, np.maximum(hi, lo + 1e-12)), diff_step=1e-3,
+                        max_nfev=int(s.common_seeds_evaluations))
+    moved = np.clip(res.x * scale, prob.lower, prob.upper)
+    fresh = [prob.seed0 + 850_000 + j for j in range(2 * s.centre_runs)]
+    before = drops_and_cost(prob.batch([(start, sd_) for sd_ in fresh]))
+    after = drops_and_cost(prob.batch([(moved, sd_) for sd_ in fresh]))
+    keep = after <= before
+    if log is not None:
+        log(f"common-seeds least squares ({s.common_seeds} seeds, {res.nfev} evaluations): "
+            f"{after[0]} drops, cost {after[1]:.4g} on fresh seeds against the start's {before[0]}, {before[1]:.4g}: "
+            f"{'the fits start there' if keep else 'not kept'}")
+    return moved if keep else start
