@@ -151,12 +151,12 @@ class EstimateSettings:
         from the start (:func:`common_seeds_fit`) and its Gauss-Newton fits start where that ends:
         the mean residual of ``common_seeds`` replays with the same seeds at every point,
 
-        .. math:: \bar r_S(\theta) = \frac{1}{S}\sum_{s=1}^{S} r(\theta, s),
+        .. math:: \\bar r_S(\\theta) = \\frac{1}{S}\\sum_{s=1}^{S} r(\\theta, s),
 
-        is a deterministic function of :math:`\theta`, smooth where a seeded replay is (the ball's
+        is a deterministic function of :math:`\\theta`, smooth where a seeded replay is (the ball's
         additive quantisers), whose minimiser beside the prior's rows is found by a standard
         trust-region least-squares solver with fine finite differences. It is the noise-free
-        problem up to one realisation of the replays' noise, :math:`\bar\varepsilon_S`, shared by
+        problem up to one realisation of the replays' noise, :math:`\\bar\\varepsilon_S`, shared by
         every point: comparing two points never compares two realisations. Where the cost lies in a
         narrow curved valley (the force balance: a few per cent of one parameter moves the cost by
         orders of magnitude) the surrogate's finite differences over one tolerance cannot follow it.
