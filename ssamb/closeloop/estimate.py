@@ -147,8 +147,9 @@ class EstimateSettings:
         with it has not converged, and its spread over a few values is the path's share of the
         uncertainty (``bench/maglev_spread.py``).
     common_seeds : int
-        0 (default): none. Otherwise :func:`best_fit` first solves the *sample-average* problem
-        from the start (:func:`common_seeds_fit`) and its Gauss-Newton fits start where that ends:
+        0 (default): none. Otherwise :func:`map_fit` (and :func:`best_fit`, with one fit: no design
+        to vary) solves the *sample-average* problem instead (:func:`common_seeds_fit`), without
+        the surrogate:
         the mean residual of ``common_seeds`` replays with the same seeds at every point,
 
         .. math:: \\bar r_S(\\theta) = \\frac{1}{S}\\sum_{s=1}^{S} r(\\theta, s),
@@ -821,6 +822,8 @@ def _no_progress(costs: list, window: int, margin: float) -> bool:
 def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callable | None = None) -> MapFit:
     """Estimate ``prob`` (see module docstring)."""
     s = settings or EstimateSettings()
+    if s.common_seeds > 0 and prob.evaluate is not None:
+        return common_seeds_fit(prob, s, log)
     lam = _prior_precision(np.asarray(prob.prior_sd, float))
     theta = np.clip(np.asarray(prob.theta0 if prob.start is None else prob.start, float).copy(), prob.lower, prob.upper)
     prob.step = np.asarray(prob.step, float).copy()
@@ -1030,9 +1033,8 @@ def best_fit(prob: Problem, settings: EstimateSettings | None = None, restarts: 
     import dataclasses
 
     s = settings or EstimateSettings()
-    if s.common_seeds > 0 and prob.evaluate is not None:
-        prob = dataclasses.replace(prob, start=common_seeds_fit(prob, s, log))
-    if restarts <= 1:
+    if restarts <= 1 or (s.common_seeds > 0 and prob.evaluate is not None):
+        # the common-seeds estimate does not depend on a design: one fit
         return map_fit(prob, s, log), []
     step0 = np.asarray(prob.step, float).copy()
     fits, scores = [], []
@@ -1052,25 +1054,35 @@ def best_fit(prob: Problem, settings: EstimateSettings | None = None, restarts: 
     return fits[best], [scores[best]] + [d for j, d in enumerate(scores) if j != best]
 
 
-def common_seeds_fit(prob: Problem, settings: EstimateSettings, log: Callable | None = None) -> np.ndarray:
-    r"""The start moved to the minimiser of the sample-average problem (:class:`EstimateSettings`
-    ``common_seeds``): ``scipy.optimize.least_squares`` (trust region, bounds) on
+def common_seeds_fit(prob: Problem, settings: EstimateSettings, log: Callable | None = None) -> MapFit:
+    r"""The estimate of the sample-average problem (:class:`EstimateSettings` ``common_seeds``).
 
-    .. math:: \big[(1 + n_d(\theta))\,\bar r_S(\theta),\; (\theta - \theta_0)/\sigma_p\big]
+    ``scipy.optimize.least_squares`` (trust region, bounds, forward differences of :math:`10^{-3}`
+    of the scale) minimises, in units of the parameters' scale (prior standard deviation, else
+    step),
 
-    in units of the parameters' scale (prior standard deviation, else step), with
-    :math:`\bar r_S` the mean of the feasible ones of ``common_seeds`` replays on fixed seeds and
-    :math:`n_d` the number of infeasible ones (a replay that drops the body is no finite
+    .. math:: \big\|(1 + n_d(\theta))\,\bar r_S(\theta)\big\|^2 + \|(\theta - \theta_0)/\sigma_p\|^2,
+
+    with :math:`\bar r_S` the mean of the feasible ones of ``common_seeds`` replays on fixed seeds
+    and :math:`n_d` the number of infeasible ones (a replay that drops the body is no finite
     difference of the cost: the factor makes every step toward more drops a worse one, none
-    floating a cost above any that floats). The solution replaces the start only when it is no
-    worse on ``2 centre_runs`` fresh seeds (:func:`drops_and_cost`: fewer drops, then a lower
-    cost): the fresh seeds judge it by the problem's noise, not by the realisation it was
-    fitted to.
+    floating a cost above any that floats). It starts from the start, or from
+    :attr:`Problem.fallback` when most replays drop the body at the start and fewer at the fallback
+    (a candidate whose unidentified parameters start at their prior mean, on a device whose
+    nominal model drops the body). The solution replaces the start only when it is no worse on
+    ``2 centre_runs`` fresh seeds (:func:`drops_and_cost`: fewer drops, then a lower cost): the
+    fresh seeds judge it by the problem's noise, not by the realisation it was fitted to.
 
-    Returns
-    -------
-    numpy.ndarray
-        The start for the Gauss-Newton fits.
+    At the estimate :math:`\hat\theta`, the Jacobian :math:`J` of :math:`\bar r_S` (forward
+    differences, common seeds: smooth where the replays are) gives the data information
+    :math:`\mathcal I = J^TJ/(1 + \rho/S)` (each whitened entry: the data's unit noise and the
+    noise of the mean of :math:`S` replays, :math:`\rho` the single replay's variance from
+    ``centre_runs`` fresh replays, whose mean is the anchor :math:`a` and the cost
+    :math:`\|a\|^2`), the covariance :math:`(\mathcal I + \Lambda)^{-1}`, and with the misfit
+    :math:`(\mathcal I/f + \Lambda)^{-1}`, :math:`f = \max(1, \|a\|^2/\text{floor})`. The fit has
+    converged when the solver met one of its tolerances; its last entry of ``history`` holds the
+    Gauss-Newton step :math:`J` and the prior still ask for, in the posterior metric per
+    parameter (``step_norm``: near 0 at an optimum).
     """
     from scipy.optimize import least_squares
 
@@ -1080,28 +1092,90 @@ def common_seeds_fit(prob: Problem, settings: EstimateSettings, log: Callable | 
     start = np.clip(np.asarray(theta0 if prob.start is None else prob.start, float), prob.lower, prob.upper)
     sd = np.asarray(prob.prior_sd, float)
     has = np.isfinite(sd)
-    seeds = [prob.seed0 + 800_000 + j for j in range(int(s.common_seeds))]
+    lam = _prior_precision(sd)
+    S = int(s.common_seeds)
+    seeds = [prob.seed0 + 800_000 + j for j in range(S)]
+    count = {"runs": 0, "infeasible": 0}
+
+    def mean_of(th):
+        rs = prob.batch([(th, sd_) for sd_ in seeds])
+        ok = [r for r in rs if np.all(np.isfinite(r))]
+        count["runs"] += len(rs)
+        count["infeasible"] += len(rs) - len(ok)
+        return (np.mean(ok, axis=0) if ok else None), len(rs) - len(ok), len(rs[0])
 
     def fun(x):
         th = x * scale
-        rs = prob.batch([(th, sd_) for sd_ in seeds])
-        ok = [r for r in rs if np.all(np.isfinite(r))]
+        m, drops, n = mean_of(th)
         prior = (th - theta0)[has] / sd[has]
-        if not ok:                  # nothing floats: above any cost of a point where something does
-            return np.concatenate([np.full(len(rs[0]), 1e4), prior])
-        return np.concatenate([np.mean(ok, axis=0) * (1.0 + len(rs) - len(ok)), prior])
+        if m is None:               # nothing floats: above any cost of a point where something does
+            return np.concatenate([np.full(n, 1e4), prior])
+        return np.concatenate([m * (1.0 + drops), prior])
 
+    fresh = [prob.seed0 + 850_000 + j for j in range(2 * s.centre_runs)]
+
+    def score(th):
+        rs = prob.batch([(th, sd_) for sd_ in fresh])
+        count["runs"] += len(rs)
+        return drops_and_cost(rs)
+    before = score(start)
+    if prob.fallback is not None and before[0] > s.centre_runs:
+        # most replays at the start drop the body: the fallback, a point known to float, if it does
+        fb = np.clip(np.asarray(prob.fallback, float), prob.lower, prob.upper)
+        at_fb = score(fb)
+        if at_fb < before:
+            start, before = fb, at_fb
     lo, hi = prob.lower / scale, prob.upper / scale
     x0 = np.clip(start / scale, lo, hi)
     res = least_squares(fun, x0, bounds=(lo, np.maximum(hi, lo + 1e-12)), diff_step=1e-3,
                         max_nfev=int(s.common_seeds_evaluations))
     moved = np.clip(res.x * scale, prob.lower, prob.upper)
-    fresh = [prob.seed0 + 850_000 + j for j in range(2 * s.centre_runs)]
-    before = drops_and_cost(prob.batch([(start, sd_) for sd_ in fresh]))
-    after = drops_and_cost(prob.batch([(moved, sd_) for sd_ in fresh]))
+    after = score(moved)
     keep = after <= before
+    theta = moved if keep else start
     if log is not None:
-        log(f"common-seeds least squares ({s.common_seeds} seeds, {res.nfev} evaluations): "
-            f"{after[0]} drops, cost {after[1]:.4g} on fresh seeds against the start's {before[0]}, {before[1]:.4g}: "
-            f"{'the fits start there' if keep else 'not kept'}")
-    return moved if keep else start
+        log(f"common-seeds least squares ({S} seeds, {res.nfev} evaluations): {after[0]} drops, cost "
+            f"{after[1]:.4g} on fresh seeds against the start's {before[0]}, {before[1]:.4g}: "
+            f"{'kept' if keep else 'the start kept'}")
+    # the Jacobian of the mean of the common seeds' replays at the estimate
+    r0, d0, n = mean_of(theta)
+    p = len(theta)
+    J = np.zeros((n, p))
+    if r0 is not None:
+        for j in range(p):
+            h = 1e-3 * scale[j] * (1.0 if theta[j] + 1e-3 * scale[j] <= prob.upper[j] else -1.0)
+            th = theta.copy()
+            th[j] += h
+            rj, dj, _ = mean_of(th)
+            if rj is not None and dj == d0:
+                J[:, j] = (rj - r0) / h
+    C = [r for r in prob.batch([(theta, prob.seed0 + 860_000 + j) for j in range(s.centre_runs)])
+         if np.all(np.isfinite(r))]
+    count["runs"] += s.centre_runs
+    count["infeasible"] += s.centre_runs - len(C)
+    if len(C) < 2:
+        C = C * 2 if C else [np.full(n, np.nan)] * 2
+    C = np.asarray(C)
+    a = C.mean(axis=0)
+    rho = float(np.mean(C.var(axis=0, ddof=1))) if np.all(np.isfinite(C)) else 0.0
+    info = J.T @ J / (1.0 + rho / max(S, 1))
+    cov = _inverse(info + np.diag(lam), scale)
+    chi2 = float(a @ a) if np.all(np.isfinite(a)) else float("inf")
+    fl = n * (1.0 + rho / len(C))
+    f = max(1.0, chi2 / fl) if np.isfinite(chi2) else 1.0
+    cov_m = _inverse(info / f + np.diag(lam), scale)
+    g = J.T @ (r0 if r0 is not None else np.zeros(n)) + lam * (theta - theta0)
+    d = -cov @ g
+    H = info + np.diag(lam)
+    norm = float(np.sqrt(max(d @ H @ d, 0.0) / max(p, 1)))
+    converged = bool(res.status > 0) and keep
+    short = (not converged) and _far_above(chi2, n, fl, s.short_alpha)
+    history = [{"iteration": 0, "theta": start.tolist(), "chi2": float(before[1]), "common_seeds": S},
+               {"iteration": 1, "theta": theta.tolist(), "chi2": chi2, "rho": rho, "step_norm": norm,
+                "determined_directions": int(np.sum(np.linalg.eigvalsh(info * np.outer(scale, scale))
+                                                    >= s.min_information)),
+                "solver_status": int(res.status), "kept": bool(keep)},
+               {"infeasible": count["infeasible"]}]
+    return MapFit(theta=theta, cov=cov, cov_misfit=cov_m, B=J, info=info, chi2=chi2, n=n, rho=rho,
+                  evaluations=count["runs"], iterations=int(res.nfev), converged=converged, history=history,
+                  centre_runs=list(C), floor=fl, stopped_short=short, infeasible=count["infeasible"])

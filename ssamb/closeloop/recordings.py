@@ -389,14 +389,18 @@ def _joint_problem(cmps: list, shared: list, sess: list, effects: list, seed0: i
                    seed0=seed0, groups=groups, evaluate_many=evaluate_many), build
 
 
-def _session_start(cmp, shared: list, sess: list, theta_shared, phi0, effects: list, est) -> np.ndarray:
+def _session_start(cmp, shared: list, sess: list, theta_shared, phi0, effects: list, est,
+                   others: tuple = ()) -> np.ndarray:
     """A recording's session parameters (:attr:`Settings.session`) calibrated on its fitting part
     with the shared parameters held at ``theta_shared`` (a start for :func:`joint_calibration`),
-    from ``phi0``; the device's own start for them when ``phi0`` is infeasible there."""
+    from ``phi0`` or one of ``others`` (e.g. the session values of the recording whose shared
+    parameters these are: the same rig, re-zeroed), whichever of them drops the body least and
+    fits the part best (:func:`ssamb.closeloop.estimate.drops_and_cost`; only ``phi0`` when there
+    are no others); the device's own start for them when that one is infeasible there."""
     import dataclasses
 
     from .calibration import calibration_problem, overrides_of
-    from .estimate import map_fit
+    from .estimate import drops_and_cost, map_fit
 
     if not sess:
         return np.zeros(0)
@@ -408,6 +412,10 @@ def _session_start(cmp, shared: list, sess: list, theta_shared, phi0, effects: l
     prob = calibration_problem(sess, None, seed0=650_000, start=np.asarray(phi0, float))
     prob.fallback = np.array([sp.theta_of(init[sp.key]) if sp.key in init else 0.0 for sp in sess])
     prob.evaluate, prob.evaluate_many = cmp.evaluator(cmp.fit, build), cmp.evaluate_many(cmp.fit, build)
+    if others:
+        starts = [np.clip(np.asarray(p, float), prob.lower, prob.upper) for p in (phi0, *others)]
+        score = [drops_and_cost(prob.batch([(th, 650_500 + j) for j in range(est.centre_runs)])) for th in starts]
+        prob.start = starts[min(range(len(starts)), key=lambda j: score[j])]
     return map_fit(prob, dataclasses.replace(est, max_iter=4, short_iter=0)).theta
 
 
@@ -489,8 +497,10 @@ def joint_calibration(dev, fit: Mapping, reps: Mapping, cfg, settings, effects: 
         est = EstimateSettings(**settings.estimate)
         for j, t in enumerate(own_theta):
             # the other recordings re-zeroed under this recording's shared parameters (their own
-            # session parameters belong to their own calibrations of the shared ones)
-            phis = [t[ns:] if k == j else _session_start(c, shared, sess[k], t[:ns], own_theta[k][ns:], effects, est)
+            # session parameters belong to their own calibrations of the shared ones: from them, or
+            # from this recording's, whichever fits better there)
+            phis = [t[ns:] if k == j else _session_start(c, shared, sess[k], t[:ns], own_theta[k][ns:], effects, est,
+                                                         (t[ns:],))
                     for k, c in enumerate(cmps)]
             th = np.clip(np.concatenate([t[:ns]] + phis), prob.lower, prob.upper)
             drops, cost = drops_and_cost(prob.batch([(th, 600_000 + 500 + s) for s in range(est.centre_runs)]))
