@@ -393,7 +393,7 @@ def _session_start(cmp, shared: list, sess: list, theta_shared, phi0, effects: l
                    others: tuple = ()) -> np.ndarray:
     """A recording's session parameters (:attr:`Settings.session`) calibrated on its fitting part
     with the shared parameters held at ``theta_shared`` (a start for :func:`joint_calibration`),
-    from ``phi0`` or one of ``others`` (e.g. the session values of the recording whose shared
+    from ``phi0`` or one of ``others`` (e.g. those of the recording whose shared
     parameters these are: the same rig, re-zeroed), whichever of them drops the body least and
     fits the part best (:func:`ssamb.closeloop.estimate.drops_and_cost`; only ``phi0`` when there
     are no others); the device's own start for them when that one is infeasible there."""
