@@ -581,27 +581,34 @@ def test_a_fit_whose_steps_no_longer_lower_the_cost_stops():
 
 def test_an_alias_replaces_a_fit_only_when_the_held_out_part_prefers_it_significantly(monkeypatch):
     """:func:`ssamb.closeloop.search._better_alias` (the final model's and every candidate's alias
-    check): of the aliases whose held-out improvement over the fit exceeds the critical z, the one
-    with the largest; none when every alias stays below it, however close; aliases outside the
-    effect's bounds are clipped to them before they are replayed."""
+    check): of the aliases whose held-out improvement over the fit exceeds the critical z and that
+    the fitting part prefers too, the one with the largest; none when every alias stays below it,
+    however close, or the fitting part prefers the fit; aliases outside the effect's bounds are
+    clipped to them before they are replayed."""
     from types import SimpleNamespace
 
     from ssamb.closeloop import search
 
     z_of = {12.0: 5.0, -12.0: 7.0, 24.0: 3.0}          # held-out z of each alias over the fit at 0
+    z_fit = {12.0: 1.0, -12.0: 0.5, 24.0: 1.0}         # the same on the fitting part
 
     class Cmp:
         hold = "held-out part"
+        fit = "fitting part"
 
         def prediction(self, overrides, effects):
             return {"delay": effects[0]["delay"]}
 
-    monkeypatch.setattr(search, "improvement_z", lambda cmp, part, base, pred, ov, eff: z_of[pred["delay"]])
+    monkeypatch.setattr(search, "improvement_z", lambda cmp, part, base, pred, ov, eff:
+                        (z_of if part == Cmp.hold else z_fit)[pred["delay"]])
     model = SimpleNamespace(lower=np.array([-12.0]), upper=np.array([24.0]),
                             aliases=lambda t: [t + 12.0, t - 12.0, t - 30.0])
     build = lambda t: [{"delay": float(t[0])}]                     # noqa: E731
     best = search._better_alias(Cmp(), {}, [], {}, model, np.array([0.0]), build, z_crit=3.09)
     assert best[0] == 7.0 and best[1] == pytest.approx([-12.0]) and best[2] == [{"delay": -12.0}]
+    z_fit[-12.0] = -0.5                                 # the fitting part prefers the fit: not that one
+    best = search._better_alias(Cmp(), {}, [], {}, model, np.array([0.0]), build, z_crit=3.09)
+    assert best[0] == 5.0 and best[1] == pytest.approx([12.0])
     z_of.update({12.0: 3.0, -12.0: 3.08})
     assert search._better_alias(Cmp(), {}, [], {}, model, np.array([0.0]), build, z_crit=3.09) is None
     model.aliases = lambda t: [t + 30.0]                          # clipped to the upper bound, 24

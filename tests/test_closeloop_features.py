@@ -311,3 +311,29 @@ def test_a_single_period_held_out_part_reads_its_dc_noise_from_the_fitting_part(
     off = 2.0 * sd_sum / n_p
     assert np.mean(dc(off, True)) == pytest.approx(2.0, abs=0.35)
     assert abs(np.mean(dc(off, False))) < 1.0
+
+
+def test_a_device_line_whose_replays_spread_has_its_own_noise_factor():
+    """:meth:`ssamb.closeloop.comparison.Comparison.noise_factors`: a view's entries share the
+    median replicate variance (times 1 + 1/m, over the median of chi-square over its degrees of
+    freedom); a device line (its real and imaginary entries, not adjacent in the vector) whose
+    replicates spread 25 times more keeps its own variance, one that spreads less keeps the
+    view's."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.comparison import Comparison
+
+    m = 8
+    z = np.arange(m, dtype=float)
+    z = (z - z.mean()) / z.std(ddof=1)                  # unit sample variance exactly
+    sd = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 5.0, 1.0, 5.0])
+    labels = [("lines", "u_y", 10.0 * k) for k in range(1, 5)]
+    labels += [("dl", "u_y", 6700.0), ("dl", "u_y", 39900.0)] * 2     # real parts, then imaginary parts
+    runs = [sd * zk for zk in z]
+    part = SimpleNamespace(whitener=SimpleNamespace(labels=labels))
+    fake = SimpleNamespace(seeds=range(m), replay=SimpleNamespace(runs=lambda e, n, o, s: runs),
+                           residual=lambda p, r: r, groups=lambda p: [np.arange(8)])
+    out = Comparison.noise_factors(fake, part)
+    shared = (1 + 1 / m) / (1 - 2 / (9 * (m - 1))) ** 3
+    assert out[[0, 1, 2, 3, 4, 6]] == pytest.approx(np.full(6, shared))
+    assert out[[5, 7]] == pytest.approx(np.full(2, 25.0 * (1 + 1 / m)))

@@ -319,7 +319,11 @@ class Comparison:
         whitened residuals times :math:`1 + 1/m` (the data are one more replay of the same
         physics), pooled per group (:meth:`groups`: the median, corrected for the median of
         :math:`\chi^2_{m-1}/(m-1)`; a one-entry group's variance itself), never below 1
-        (:func:`ssamb.closeloop.estimate._sandwich` reads replicates the same way).
+        (:func:`ssamb.closeloop.estimate._sandwich` reads replicates the same way). A device line
+        (the PWM's aliased lines in a controller output) has its own factor where its replicates
+        spread more than its group's: their spread grows with the line's frequency and along the
+        record, and a pooled factor lets those few entries decide every held-out comparison (the
+        validation page has the measured case).
         """
         reps = np.array([self.residual(part, r) for r in self.replay.runs(effects, None, overrides, self.seeds)])
         m = len(reps)
@@ -330,6 +334,8 @@ class Comparison:
         med = (1 - 2 / (9 * (m - 1))) ** 3
         for g in self.groups(part):
             out[g] = max(float(np.median(v[g])) / (med if len(g) > 1 else 1.0), 1.0)
+        for idx in _device_line_pairs(part.whitener.labels):
+            out[idx] = max(float(np.mean(v[idx])), float(out[idx[0]]))
         return out
 
     def groups(self, part: Part) -> list:
@@ -352,3 +358,13 @@ class Comparison:
             for k in ("dc", "win", "band"):
                 out[f"{v}:{k}"] = np.array([i for i in idx if i in special[k]], int)
         return {k: x for k, x in out.items() if len(x)}
+
+
+def _device_line_pairs(labels: list) -> list:
+    """Index arrays of the whitened vector's device-line entries, one per view and line (its real
+    and imaginary parts), from a whitener's ``labels`` (``(group, view, frequency)``)."""
+    pairs: dict = {}
+    for i, (g, v, f) in enumerate(labels):
+        if g == "dl":
+            pairs.setdefault((v, f), []).append(i)
+    return [np.asarray(ix, int) for ix in pairs.values()]

@@ -29,8 +29,10 @@ held-out data, then refit everything jointly.
    (an effect absorbs what a parameter took before it was found; the parameters' priors decide
    how shared signatures split), and the identifiability of all of them. It starts from the
    model the effects were found on (:func:`joint_start`). An effect whose size the joint refit
-   finds consistent with zero (:func:`size_statistic`) is dropped from the findings and the
-   final model. How the final model is known to be a local optimum of the joint problem
+   finds consistent with zero (:func:`size_statistic`) is weighed by the held-out part against
+   the same model with it at zero and against the refit without it (:func:`_weigh_weak`), and
+   dropped from the findings and the final model unless both predict the held-out part
+   significantly worse. How the final model is known to be a local optimum of the joint problem
    (:func:`optimum_of`) and how far its held-out misfit stays above the noise (:func:`misfit`)
    go into the report.
 """
@@ -46,7 +48,7 @@ from scipy import stats
 from .calibration import Calibration, calibrate_model, identifiability, overrides_of
 from .comparison import Comparison
 from .estimate import EstimateSettings, Problem, map_fit
-from .fit import Base, Candidate, fit_candidate, holdout_score, improvement_z, size_mask
+from .fit import Base, Candidate, _scaled, fit_candidate, holdout_score, improvement_z, size_mask
 from .models import restart
 from .residual import compute_features
 from .signatures import claim_stat, evidence_all, rank
@@ -510,9 +512,11 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
         a["se"] = np.hypot(a["se_local"], a.get("alias_sd", 0.0))
         w, k = size_statistic(fit.theta[lo:hi], fit.cov_misfit[lo:hi, lo:hi], list(m.params), m.size_params)
         a["joint_size_chi2"] = w
-        if w <= float(stats.chi2.isf(alpha, k)):
+        if w <= float(stats.chi2.isf(alpha, k)) and a.get("beyond_z") is None:
+            w = a.get("weighed", {}).get("size_chi2", w)
             out.dropped.append({"name": m.name, "round": a["round"], "size_chi2": w, "k": k,
-                                "theta": dict(zip(m.params, a["theta"].tolist())),
+                                "beyond_z": a.get("weighed", {}).get("zeroed_z"),
+                                "theta": dict(zip(m.params, a.get("weighed", {}).get("theta", a["theta"]).tolist())),
                                 "se": dict(zip(m.params, a["se"].tolist()))})
             _log(progress, f"joint refit: {m.name} dropped, its size is consistent with zero "
                            f"(Wald chi2 {w:.3g} on {k})")
@@ -523,10 +527,106 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
     return eff
 
 
+def _weigh_weak(cmp: Comparison, cal: Calibration, out: SearchResult, settings, est, progress: bool,
+                start: np.ndarray, joint: tuple) -> tuple:
+    """The joint refit with every accepted effect whose size its Wald test cannot tell from zero
+    weighed by the held-out part (:func:`ssamb.closeloop.fit.improvement_z` at ``alpha_accept``).
+    First the same model with the effect's size set to zero: if that predicts the held-out part as
+    well, the effect holds nothing and goes (the parameters stay). Otherwise the joint problem is
+    refitted without it from the same start, and the effect stays (``beyond_z``) only where the
+    model with it beats that refit too; if not, the better of the two models without it by the
+    joint objective (:func:`_objectives`) is the joint refit. The weakest first, until every
+    effect left is significant by one of the tests. Returns the joint refit (:func:`_joint`'s
+    tuple); a dropped effect is zeroed in it and :func:`_drop_null_effects` moves it to
+    ``out.dropped``.
+
+    The Wald statistic is a local quadratic approximation: where calibrated parameters can take an
+    effect's static signature (the rotor's weight and a static load in y) its local standard
+    error is wide although the model without it, refitted, predicts the held-out part
+    significantly worse. And two fits of one model from one start differ by the noise of their
+    single-replay costs: a refit without an effect can lose to the fit with it at zero size, which
+    is why the zeroed model is asked first."""
+    import dataclasses
+
+    z_crit = float(stats.norm.isf(settings.alpha_accept))
+    while True:
+        fit, theta_cal, ov, eff, models, cuts, ident = joint
+        weak = []
+        for a, m, lo, hi in zip(out.accepted, models, cuts[:-1], cuts[1:]):
+            w, k = size_statistic(fit.theta[lo:hi], fit.cov_misfit[lo:hi, lo:hi], list(m.params), m.size_params)
+            if w <= float(stats.chi2.isf(settings.alpha_accept, k)) and not ("beyond_z" in a or "weighed" in a):
+                weak.append((w, k, a, m, lo, hi))
+        if not weak:
+            return joint
+        w, k, a, m, lo, hi = min(weak, key=lambda t: t[0])
+        with_pred = cmp.prediction(ov, eff)
+        theta0 = fit.theta.copy()
+        theta0[lo:hi] = np.where(size_mask(m), 0.0, theta0[lo:hi])
+        zeroed = (dataclasses.replace(fit, theta=theta0), theta_cal, ov,
+                  [e for mm, l2, h2 in zip(models, cuts[:-1], cuts[1:]) for e in mm.build(theta0[l2:h2])],
+                  models, cuts, ident)
+        z0 = improvement_z(cmp, cmp.hold, Base(ov, zeroed[3], cmp.prediction(ov, zeroed[3])), with_pred, ov, eff)
+        if z0 > z_crit:
+            rest = [b for b in out.accepted if b is not a]
+            alt = _joint(cmp, cal, rest, settings, est, progress, start)
+            z1 = improvement_z(cmp, cmp.hold, Base(alt[2], alt[3], cmp.prediction(alt[2], alt[3])), with_pred, ov,
+                               eff)
+            if z1 > z_crit:
+                a["beyond_z"] = z1
+                _log(progress, f"joint refit: {m.name} kept: its Wald chi2 {w:.3g} on {k} is small, but the model with "
+                               f"it beats the model with it at zero (z {z0:.1f}) and the refit without it (z {z1:.1f}) "
+                               f"on the held-out part")
+                continue
+        a["weighed"] = {"size_chi2": w, "k": k, "zeroed_z": z0, "theta": fit.theta[lo:hi].copy()}
+        _log(progress, f"joint refit: {m.name} dropped, its size is consistent with zero (Wald chi2 {w:.3g} on {k}) "
+                       f"and the held-out part does not need it (z {z0:.2f} over the model with it at zero)")
+        joint = zeroed
+        if z0 > z_crit:
+            a["weighed"]["refit_z"] = z1
+            costs = _objectives(cmp, zeroed, alt)
+            if costs[1] < costs[0]:
+                joint = _with_null(alt, a, models, cuts, fit, out)
+
+
+def _with_null(alt: tuple, a: dict, models: list, cuts: np.ndarray, fit, out: SearchResult) -> tuple:
+    """A refit without the accepted effect ``a`` as a joint tuple over all of ``out.accepted``:
+    the effect's parameters at zero size (so that :func:`_drop_null_effects` drops it)."""
+    import dataclasses
+
+    i = next(j for j, b in enumerate(out.accepted) if b is a)
+    lo, hi = cuts[i], cuts[i + 1]
+    n = hi - lo
+    m = models[i]
+    th = np.concatenate([alt[0].theta[:lo], np.where(size_mask(m), 0.0, fit.theta[lo:hi]), alt[0].theta[lo:]])
+
+    def grow(x):
+        x = np.asarray(x)
+        if x.ndim == 1:
+            return np.concatenate([x[:lo], np.zeros(n), x[lo:]])
+        y = np.insert(x, [lo] * n, 0.0, axis=0)
+        return np.insert(y, [lo] * n, 0.0, axis=1)
+    f = dataclasses.replace(alt[0], theta=th, se=grow(alt[0].se), se_misfit=grow(alt[0].se_misfit),
+                            cov=grow(alt[0].cov), cov_misfit=grow(alt[0].cov_misfit))
+    return (f, alt[1], alt[2], alt[3], models, cuts, alt[6])
+
+
+def _objectives(cmp: Comparison, a: tuple, b: tuple) -> tuple[float, float]:
+    r"""The joint problem's objective at two of its fits (:func:`_joint`'s tuples), each evaluated
+    on its prediction (the mean of the comparison's replays, common seeds):
+    :math:`\chi^2 + \lVert\theta\rVert^2`, the fitting part's whitened residual (both rescaled by
+    the larger of their noise factors) plus the calibrated parameters' prior term (tolerance
+    units). The fits' own costs are single-replay evaluations whose noise is as large as the
+    difference between two local optima."""
+    pa, pb = cmp.prediction(a[2], a[3]), cmp.prediction(b[2], b[3])
+    ra, rb = _scaled(cmp, cmp.fit, Base(a[2], a[3], pa), pb, b[2], b[3])
+    return float(ra @ ra + a[1] @ a[1]), float(rb @ rb + b[1] @ b[1])
+
+
 def _better_alias(cmp: Comparison, overrides: dict, effects: list, pred: dict, model, theta: np.ndarray, build,
                   z_crit: float):
     """The alias of an effect at ``theta`` (:attr:`ssamb.device.EffectModel.aliases`) that fits the
-    held-out part better than ``theta`` by more than ``z_crit`` (:func:`ssamb.closeloop.fit.improvement_z`
+    held-out part better than ``theta`` by more than ``z_crit``, and the fitting part better too (both
+    by the mean of the comparison's replays; :func:`ssamb.closeloop.fit.improvement_z`
     of the model with the effect moved over the model ``overrides``, ``effects``, ``pred``), the best
     such: ``(z, alias, effects, prediction)``, or None. ``build(alias)``: the model's whole effect
     list with the effect at the alias."""
@@ -537,7 +637,10 @@ def _better_alias(cmp: Comparison, overrides: dict, effects: list, pred: dict, m
         eff = build(t)
         p = cmp.prediction(overrides, eff)
         z = improvement_z(cmp, cmp.hold, base, p, overrides, eff)
-        if z > z_crit and (best is None or z > best[0]):
+        # the fitting part must prefer it too: a model that misfits elsewhere can favour a wrong
+        # alias on one part (an unexcited axis's delay a whole sample off taking up another
+        # misfit), and between parts that disagree the spread stays
+        if z > z_crit and improvement_z(cmp, cmp.fit, base, p, overrides, eff) > 0 and (best is None or z > best[0]):
             best = (z, t, eff, p)
     return best
 
@@ -668,7 +771,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     base = _effect_search(cmp, base, settings, est, out, measured_contact, progress)
     if out.accepted or cal.conflicts:
         start = joint_start(cal, base, free, spare, bool(out.accepted))
-        fit, theta_cal, ov, eff, models, cuts, ident = _joint(cmp, cal, out.accepted, settings, est, progress, start)
+        joint = _joint(cmp, cal, out.accepted, settings, est, progress, start)
+        fit, theta_cal, ov, eff, models, cuts, ident = _weigh_weak(cmp, cal, out, settings, est, progress, start, joint)
         eff = _drop_null_effects(out, fit, models, cuts, settings.alpha_accept, progress)
         out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
         out.overrides, out.effects = ov, eff
