@@ -83,7 +83,9 @@ class SearchResult:
         What the held-out residual of the final model fails (when not consistent with noise).
     dropped : list of dict
         Effects accepted in a round whose size the joint refit found consistent with zero (not
-        in the final model): name, round, Wald statistic, values and standard errors.
+        in the final model): name, round, Wald statistic, the held-out improvement of the model
+        with it over the same model with it at zero (``beyond_z``, :func:`_weigh_weak`), values
+        and standard errors.
     misfit : dict
         The final model's held-out misfit against the noise (:func:`misfit`).
     optimum : dict
