@@ -339,6 +339,76 @@ def test_an_effect_the_joint_refit_leaves_at_zero_is_dropped():
     assert out.dropped[0]["name"] == "amplifier_deadtime" and out.dropped[0]["size_chi2"] == pytest.approx(0.04)
 
 
+@pytest.mark.parametrize("z_zeroed, z_refit, refit_cheaper", [(0.5, None, None), (5.0, 5.0, None),
+                                                              (5.0, 1.0, True), (5.0, 1.0, False)])
+def test_a_weak_effect_is_weighed_by_the_held_out_part(monkeypatch, z_zeroed, z_refit, refit_cheaper):
+    """:func:`ssamb.closeloop.search._weigh_weak`, a load (18, -4.6 +- 0.3 N) and a dead time of
+    2 +- 10 ns whose Wald test is weak: when the same model with the dead time at zero predicts the
+    held-out part as well (z 0.5 <= 3.09) it goes with no refit; when the zeroed model is worse
+    (z 5) and so is the joint refit without it (z 5) it stays (``beyond_z``); when only the zeroed
+    model is worse, it goes and the final model is the refit without it if that has the lower
+    joint objective (its load, 17.5 and -4.5, and its covariance with a zero row for the dead
+    time), the zeroed model otherwise. :func:`_drop_null_effects` then reports what went."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search
+
+    @dataclasses.dataclass
+    class Fit:
+        theta: np.ndarray
+        cov: np.ndarray
+        cov_misfit: np.ndarray
+        se: np.ndarray
+        se_misfit: np.ndarray
+
+    def fit_of(theta, var):
+        c = np.diag(var)
+        return Fit(np.array(theta), c, c, np.sqrt(var), np.sqrt(var))
+
+    load = _amb_model("static_load", {"axes": ["x", "y"]})
+    dead = _amb_model("amplifier_deadtime", {})
+    ov, ov_alt = {"with": 1}, {"refit": 1}
+    joint = (fit_of([0.01, -0.02, 18.0, -4.6, 2e-9], np.array([1e-4, 1e-4, 0.09, 0.09, 1e-16])), np.zeros(2), ov,
+             [], [load, dead], np.array([2, 4, 5]), {})
+    alt = (fit_of([0.02, -0.01, 17.5, -4.5], np.array([1e-4, 1e-4, 0.04, 0.04])), np.zeros(2), ov_alt, [], [load],
+           np.array([2, 4]), {})
+    joints = []
+
+    def refit(cmp, cal, accepted, settings, est, progress, start):
+        joints.append([a["name"] for a in accepted])
+        return alt
+    monkeypatch.setattr(search, "_joint", refit)
+    monkeypatch.setattr(search, "improvement_z",
+                        lambda cmp, part, base, pred, o, e: z_zeroed if base.overrides is ov else z_refit)
+    monkeypatch.setattr(search, "_objectives", lambda cmp, a, b: (2.0, 1.0) if refit_cheaper else (1.0, 2.0))
+    cmp = SimpleNamespace(hold="held-out part", prediction=lambda o, e: {})
+    out = search.SearchResult(accepted=[{"name": "static_load", "round": 0}, {"name": "amplifier_deadtime",
+                                                                               "round": 1}])
+    got = search._weigh_weak(cmp, None, out, SimpleNamespace(alpha_accept=1e-3), None, False, np.zeros(2), joint)
+    assert joints == ([] if z_zeroed < 3.09 else [["static_load"]])
+    eff = search._drop_null_effects(out, got[0], got[4], got[5], 1e-3, False)
+    if z_refit is not None and z_refit > 3.09:
+        assert [a["name"] for a in out.accepted] == ["static_load", "amplifier_deadtime"] and not out.dropped
+        assert out.accepted[1]["beyond_z"] == 5.0
+        return
+    assert [a["name"] for a in out.accepted] == ["static_load"]
+    d = out.dropped[0]
+    assert d["name"] == "amplifier_deadtime" and d["theta"]["deadtime_s"] == 2e-9
+    assert d["beyond_z"] == z_zeroed and d["refit_z"] == z_refit
+    from ssamb.closeloop.report import _dropped_note
+
+    note = _dropped_note(d)
+    assert f"z {z_zeroed:.2f} over the same model with it at zero" in note
+    assert ("over the joint refit without it" in note) == (z_refit is not None)
+    if refit_cheaper:
+        assert got[2] is ov_alt and eff == [{"name": "static_load", "fx_n": 17.5, "fy_n": -4.5}]
+        assert got[0].cov_misfit.shape == (5, 5) and not got[0].cov_misfit[4].any() and not got[0].cov[:, 4].any()
+        assert got[0].se_misfit[:4] == pytest.approx([0.01, 0.01, 0.2, 0.2])
+    else:
+        assert got[2] is ov and eff == [{"name": "static_load", "fx_n": 18.0, "fy_n": -4.6}]
+
+
 def test_an_alias_as_plausible_as_the_fit_widens_the_reported_error_not_the_size_test():
     """An accepted effect whose fit had a point as plausible 4 units away on its second parameter
     (alias standard deviation 2): after the joint refit (standard errors 0.3) that parameter is

@@ -136,9 +136,12 @@ def _notes(rec, effects, cal_block, not_ident) -> list:
 def _dropped_note(d: dict) -> str:
     """The note of an effect the joint refit left at zero (:attr:`SearchResult.dropped`)."""
     values = ", ".join(f"{k} {v:.3g} +- {d['se'][k]:.2g}" for k, v in d["theta"].items())
-    beyond = (f", and the held-out part does not need it (the model with it improves on the same model with it "
-              f"at zero by z {d['beyond_z']:.2f}, or on the refit without it)"
-              if d.get("beyond_z") is not None else "")
+    beyond = ""
+    if d.get("beyond_z") is not None:
+        beyond = f", and the held-out part does not need it (z {d['beyond_z']:.2f} over the same model with it at zero"
+        if d.get("refit_z") is not None:
+            beyond += f"; z {d['refit_z']:.2f} over the joint refit without it"
+        beyond += ")"
     return (f"{d['name']}: accepted in round {d['round']}, but in the joint refit its size is consistent with zero "
             f"({values}; Wald chi2 {d['size_chi2']:.3g} on {d['k']}){beyond}: not a finding, left out of the final "
             f"model")

@@ -518,6 +518,7 @@ def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, a
             w = a.get("weighed", {}).get("size_chi2", w)
             out.dropped.append({"name": m.name, "round": a["round"], "size_chi2": w, "k": k,
                                 "beyond_z": a.get("weighed", {}).get("zeroed_z"),
+                                "refit_z": a.get("weighed", {}).get("refit_z"),
                                 "theta": dict(zip(m.params, a.get("weighed", {}).get("theta", a["theta"]).tolist())),
                                 "se": dict(zip(m.params, a["se"].tolist()))})
             _log(progress, f"joint refit: {m.name} dropped, its size is consistent with zero "
