@@ -285,3 +285,46 @@ def test_axis_both_gives_independent_signals(cfg):
         res = simulate(cfg, excitation=exc, duration_s=0.02, settle_s=0.0)
         assert not np.array_equal(res.data["inj_x"], res.data["inj_y"])
         assert np.abs(res.data["inj_x"]).max() == pytest.approx(0.1)
+
+
+def test_additive_quantisers_add_one_step_of_uniform_noise(cfg):
+    """``converters.additive_quantisers``: the converters pass their input and the noise carries
+    each rounding error, a uniform draw of one step (variance q^2/12) from its own stream: the
+    Gaussian part is the rounding replay's, unchanged."""
+    from ssamb.sim.api import converter_noise
+
+    par = amb_params(cfg)
+    add = amb_params(apply_overrides(cfg, {"converters.additive_quantisers": 1}))
+    n, seed = 200_000, np.random.SeedSequence([3, 5])
+    g, g_pi = converter_noise(par, n, seed)
+    a, a_pi = converter_noise(add, n, seed)
+    qx, qi = par.position_step_m, par.current_step_a
+    assert qi == pytest.approx(2 * 10.0 / 2**14) and qx == pytest.approx(2 * 5e-4 / 2**12)
+    for rows, q in ((slice(0, 2), qx), (slice(2, 6), qi)):
+        u = (a[rows] - g[rows]) / q
+        assert u.min() >= -0.5 and u.max() < 0.5
+        assert np.mean(u) == pytest.approx(0.0, abs=5 * np.sqrt(1 / 12 / u.size))
+        assert np.var(u) == pytest.approx(1 / 12, rel=0.01)
+    assert np.all(np.abs(a_pi - g_pi) <= qi / 2)
+    from ssamb.sim.params import P_I_Q, P_X_Q
+    assert par.pack()[P_I_Q] == pytest.approx(qi) and add.pack()[P_I_Q] == 0.0 == add.pack()[P_X_Q]
+
+
+def test_the_self_sensed_loop_is_chaotic_the_probe_loop_is_not(cfg):
+    """Why replays of the AMB on common seeds are no smooth function of its parameters: a change
+    of the bias current by one part in 1e10 leaves the y coil currents (the DCM self-sensed loop:
+    the PWM ripple, read by the converter, sets the next duty cycles) as far from the unchanged
+    replay as a replay's own jitter, 0.1 A and more; with additive quantisers the x probe's loop
+    moves by less than 1e-3 of its converter noise, and with rounding by whole codes."""
+    def run(over, rel):
+        c = apply_overrides(cfg, {**over, "table1.i_bias_a": cfg["table1"]["i_bias_a"] * (1 + rel)})
+        return simulate(c, "multisine", duration_s=0.05, progress=False).data
+
+    rms = {}
+    for label, over in (("round", {}), ("add", {"converters.additive_quantisers": 1})):
+        d0, d1 = run(over, 0.0), run(over, 1e-10)
+        rms[label] = {k: float(np.sqrt(np.mean((d1[k] - d0[k]) ** 2))) for k in ("x_meas", "i_ypos")}
+    qx = amb_params(cfg).position_step_m
+    assert rms["add"]["i_ypos"] > 0.1 and rms["round"]["i_ypos"] > 0.1
+    assert rms["add"]["x_meas"] < 1e-3 * cfg["converters"]["position_noise_m"]
+    assert rms["round"]["x_meas"] > 0.1 * qx

@@ -129,7 +129,7 @@ class SimOptions:
 # ------------------------------------------------------------------------------------------
 def converter_noise(par: AMBParams, n: int, seed_seq: np.random.SeedSequence | int,
                     noise: Mapping | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Analog noise of the DSP's converters for ``n`` controller samples.
+    r"""Analog noise of the DSP's converters for ``n`` controller samples.
 
     Returns ``(noise, npi)``: ``noise`` (rows :data:`ssamb.sim.kernel.NOISE_ROWS`: x probe,
     y probe, the four coil currents) and ``npi`` (4 x PWM periods, the amplifiers' PI current
@@ -137,6 +137,16 @@ def converter_noise(par: AMBParams, n: int, seed_seq: np.random.SeedSequence | i
     ``current_noise_a`` (or of ``noise`` when given, the legacy ``simulate(noise=...)``), drawn in
     that order from ``numpy.random.default_rng(seed_seq)`` (by :func:`ssamb.sim.normal.standard_normal`:
     NumPy's numbers, compiled).
+
+    With ``par.additive_quantisers`` the converters pass their input unrounded
+    (:meth:`AMBParams.pack`) and each sample's rounding error is added here instead, a uniform
+    draw :math:`q\,u`, :math:`u \sim U[-1/2, 1/2)` (variance :math:`q^2/12`; :math:`q` the step,
+    1.22 mA and 0.24 um by default) from a stream of its own (the Gaussian draws unchanged).
+    With the analog noise at least :math:`0.4\,q` ahead of the converter (0.5 mA and 0.2 um by
+    default), a rounding error is nearly uniform and independent of the signal (the bias of the
+    rounding, :math:`(q/\pi)\,e^{-2\pi^2\sigma^2/q^2}`, is 14 uA for the current), so the
+    replay is as noisy as the rounding one; for a fixed seed it is a smooth function of every
+    parameter, which a derivative-based fit of the mean of replays on common seeds needs.
     """
     sp, si = par.position_noise_m, par.current_noise_a
     if noise:
@@ -144,12 +154,31 @@ def converter_noise(par: AMBParams, n: int, seed_seq: np.random.SeedSequence | i
         seed_seq = int(noise.get("seed", 0))
     n_per = int(n / par.fs_hz * par.f_pwm_hz) + 4
     if sp == 0.0 and si == 0.0:
-        return np.zeros((6, n)), np.zeros((4, n_per))
-    raw, raw_pi = _standard_noise(seed_seq, n, n_per)
-    out = np.empty_like(raw)
-    np.multiply(raw[:2], sp, out=out[:2])
-    np.multiply(raw[2:], si, out=out[2:])
-    return out, raw_pi * si
+        out, out_pi = np.zeros((6, n)), np.zeros((4, n_per))
+    else:
+        raw, raw_pi = _standard_noise(seed_seq, n, n_per)
+        out = np.empty_like(raw)
+        np.multiply(raw[:2], sp, out=out[:2])
+        np.multiply(raw[2:], si, out=out[2:])
+        out_pi = raw_pi * si
+    if par.additive_quantisers:
+        qx, qi = par.position_step_m, par.current_step_a
+        u, u_pi = _rounding_draws(seed_seq, n, n_per)
+        out[:2] += qx * u[:2]
+        out[2:] += qi * u[2:]
+        out_pi = out_pi + qi * u_pi
+    return out, out_pi
+
+
+def _rounding_draws(seed_seq: np.random.SeedSequence | int, n: int, n_per: int) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform draws on ``[-1/2, 1/2)``, ``(6 x n, 4 x n_per)``, of a stream of their own: the
+    seed sequence's entropy with one more spawn key (the converters' Gaussian draws unchanged)."""
+    if isinstance(seed_seq, np.random.SeedSequence):
+        sq = np.random.SeedSequence(seed_seq.entropy, spawn_key=(*seed_seq.spawn_key, 0x51A1))
+    else:
+        sq = np.random.SeedSequence(int(seed_seq), spawn_key=(0x51A1,))
+    rng = np.random.default_rng(sq)
+    return rng.random((6, n)) - 0.5, rng.random((4, n_per)) - 0.5
 
 
 #: standard normal draws of recent seeds (replays of one model with several seeds repeat them),

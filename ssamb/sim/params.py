@@ -129,12 +129,25 @@ class AMBParams:
     position_adc_bits: int
     position_adc_range_m: float
     computation_delay_samples: int
+    additive_quantisers: bool = False  # converters that add their rounding error as noise (converter_noise)
 
     # ---- derived quantities -------------------------------------------------------------
     @property
     def l_rotor_m(self) -> float:
         """Journal path of one magnet: the arc and both radial legs."""
         return self.l_rotor_arc_m + self.l_rotor_radial_m
+
+    @property
+    def current_step_a(self) -> float:
+        r"""Step of the current converter, :math:`q_i = 2 I_{fs}/2^{b_i}` (0: ideal); 1.22 mA for
+        14 bits over +/-10 A."""
+        return 2.0 * self.current_adc_range_a / 2**self.current_adc_bits if self.current_adc_bits > 0 else 0.0
+
+    @property
+    def position_step_m(self) -> float:
+        r"""Step of the position converter, :math:`q_x = 2 X_{fs}/2^{b_x}` (0: ideal); 0.24 um for
+        12 bits over +/-0.5 mm."""
+        return 2.0 * self.position_adc_range_m / 2**self.position_adc_bits if self.position_adc_bits > 0 else 0.0
 
     @property
     def l_eq_m(self) -> float:
@@ -241,7 +254,9 @@ class AMBParams:
         )
         for key, bits, rng in (("I", self.current_adc_bits, self.current_adc_range_a),
                                ("X", self.position_adc_bits, self.position_adc_range_m)):
-            vals[key + "_Q"] = 2.0 * rng / 2**bits if bits > 0 else 0.0
+            if self.additive_quantisers:     # the converters pass their input: the noise carries the steps
+                bits = 0
+            vals[key + "_Q"] = 2.0 * rng / 2**bits if bits > 0 else 0.0   # = current_step_a, position_step_m
             vals[key + "_INVQ"] = 2**bits / (2.0 * rng) if bits > 0 else 0.0
             vals[key + "_CMAX"] = 2 ** (bits - 1) - 1 if bits > 0 else 0.0
         return vals
@@ -310,8 +325,10 @@ def _eddy(cfg: Mapping, l_fe: float, ap: float, mu_r: float) -> dict:
 
 def _converters(cfg: Mapping) -> dict:
     cv = cfg["converters"]
-    return {k: cv[k] for k in ("current_noise_a", "current_adc_bits", "current_adc_range_a", "position_noise_m",
-                               "position_adc_bits", "position_adc_range_m", "computation_delay_samples")}
+    out = {k: cv[k] for k in ("current_noise_a", "current_adc_bits", "current_adc_range_a", "position_noise_m",
+                              "position_adc_bits", "position_adc_range_m", "computation_delay_samples")}
+    out["additive_quantisers"] = bool(cv.get("additive_quantisers", 0))
+    return out
 
 
 def amb_params(cfg: Mapping) -> AMBParams:
