@@ -153,6 +153,12 @@ class EffectModel:
         (a delay one whole controller sample longer or shorter, on an axis whose sensor does not
         see the PWM's ripple); scored like the mirrors, and those the fit's cost cannot be told
         from widen the reported standard errors (:func:`ssamb.closeloop.fit.alias_sd`).
+    comb : callable or None
+        ``theta -> list of theta``: every distant point within the effect's search range that the
+        data may not tell from ``theta`` (a delay every whole controller sample longer or shorter,
+        one axis at a time). The final model's spread over those neither part of the record
+        rejects widens its reported standard errors (:func:`ssamb.closeloop.search._alias_spread`):
+        a whole number of samples that only the phase at low lines fixes can be off by more than one.
     """
 
     name: str
@@ -167,6 +173,7 @@ class EffectModel:
     size_params: tuple | None = None
     mirrors: Callable | None = None
     aliases: Callable | None = None
+    comb: Callable | None = None
 
 
 class EffectModule(Protocol):

@@ -687,6 +687,59 @@ def test_an_alias_replaces_a_fit_only_when_the_held_out_part_prefers_it_signific
     assert moved[1] == pytest.approx([24.0])
 
 
+def test_a_delays_spread_over_its_comb_counts_every_point_the_record_does_not_reject(monkeypatch):
+    """:func:`ssamb.closeloop.search._alias_spread`: of the comb's points (whole samples away), those
+    whose improvement over the final model is above -z_c on both parts are plausible, and the
+    spread is the root mean square distance over them and the reported point, equally likely
+    (two points d apart: d/sqrt(2)); none plausible: 0."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search
+
+    z_hold = {15.0: -5.0, 39.0: -3.7, 51.0: -2.0, 63.0: -3.0, 75.0: -8.0}
+    z_fit = {15.0: 0.5, 39.0: 1.0, 51.0: 0.3, 63.0: -3.2, 75.0: 0.0}
+
+    class Cmp:
+        hold = "held-out part"
+        fit = "fitting part"
+
+        def prediction(self, overrides, effects):
+            return {"delay": effects[0]["delay"]}
+
+    monkeypatch.setattr(search, "improvement_z", lambda cmp, part, base, pred, ov, eff:
+                        (z_hold if part == Cmp.hold else z_fit)[pred["delay"]])
+    model = SimpleNamespace(params=("delay_x_s",), lower=np.array([0.0]), upper=np.array([1e3]),
+                            build=lambda t: [{"delay": float(t[0])}],
+                            comb=lambda t: [t + k for k in (-12.0, 12.0, 24.0, 36.0, 48.0)])
+    a = {"model": model, "theta": np.array([27.0])}
+    out = SimpleNamespace(accepted=[a], overrides={}, effects=[{"delay": 27.0}], final={"delay": 27.0})
+    s, plausible = search._alias_spread(Cmp(), out, a, 3.09)
+    assert [p["delay_x_s"] for p in plausible] == [51.0] and plausible[0]["z_hold"] == -2.0
+    assert s[0] == pytest.approx(24.0 / np.sqrt(2.0))
+    z_hold[15.0] = -1.0                                  # 12 below too: (12^2 + 24^2) / 3
+    s, plausible = search._alias_spread(Cmp(), out, a, 3.09)
+    assert s[0] == pytest.approx(np.sqrt((144.0 + 576.0) / 3.0)) and len(plausible) == 2
+    z_hold.update({15.0: -4.0, 51.0: -3.1})
+    s, plausible = search._alias_spread(Cmp(), out, a, 3.09)
+    assert s[0] == 0.0 and plausible == []
+
+
+def test_the_delay_comb_covers_its_search_range_one_axis_at_a_time():
+    """:func:`ssamb.sim.effects.sensor_delay._comb`: every whole controller sample away within
+    [0, max(120 us, tau + Ts)], one axis at a time, never the point itself."""
+    from ssamb.sim.effects.sensor_delay import _comb
+
+    ts = 12e-6
+    pts = _comb(np.array([27e-6, 51e-6]), ts)
+    xs = sorted(p[0] for p in pts if p[1] == 51e-6)
+    ys = sorted(p[1] for p in pts if p[0] == 27e-6)
+    assert len(pts) == len(xs) + len(ys)
+    assert np.allclose(xs, [3e-6, 15e-6] + [27e-6 + k * ts for k in range(1, 8)])
+    assert np.allclose(ys, [3e-6 + k * ts for k in range(4)] + [51e-6 + k * ts for k in range(1, 6)])
+    assert all(p.min() >= 0 and p.max() <= 120e-6 for p in pts)
+    assert np.allclose(max(p[0] for p in _comb(np.array([130e-6]), ts)), 142e-6)
+
+
 def test_common_seeds_least_squares_follows_a_narrow_curved_valley():
     """:func:`ssamb.closeloop.estimate.common_seeds_fit`: a residual whose cost lies in a narrow
     curved valley (Rosenbrock's, :math:`r = [20 (x_2 - x_1^2),\\ 1 - x_1]`, minimum at (1, 1)) with

@@ -106,7 +106,8 @@ def _effects(search, sigma, meas_v, hold, dev) -> list:
                                 "identifiable": idf, "holdout_z": a["holdout"]["z"],
                                 "explained_at_acceptance": a["holdout"]["explained"],
                                 "delta_bic": a["holdout"]["delta_bic"], "round": a["round"],
-                                "without_signature": a["without_signature"]},
+                                "without_signature": a["without_signature"],
+                                "aliases_plausible": a.get("alias_spread", {}).get("plausible", [])},
                         **{k: v for k, v in e.items() if k not in ("name", "params", "uncertainty")}})
     out.sort(key=lambda e: -e["error_reduction"])
     return out
@@ -118,6 +119,10 @@ def _notes(rec, effects, cal_block, not_ident) -> list:
         if ax not in rec.excited_axes:
             notes.append(f"axis {ax} is not excited: a sensor gain or delay on it leaves no trace in these data")
     for e in effects:
+        if e["fit"].get("aliases_plausible"):
+            notes.append(f"{e['name']}: {len(e['fit']['aliases_plausible'])} point(s) of its comb (a delay whole "
+                         "controller samples away) fit both parts of the record as well: its standard error holds "
+                         "their spread")
         if e["fit"]["without_signature"]:
             notes.append(f"{e['name']}: no signature was significant before fitting (round {e['fit']['round']}); "
                          "it was found by fitting each library effect and rests on the held-out error alone")

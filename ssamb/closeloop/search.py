@@ -680,8 +680,10 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
     is: by the held-out improvement :func:`ssamb.closeloop.fit.improvement_z` of the model with
     one effect moved to an alias over the final model (predictions: the mean of the comparison's
     replays, :func:`_better_alias`). An alias whose :math:`z` exceeds the acceptance level replaces
-    the effect's values, and the spread between aliases no longer widens the moved parameters'
-    standard errors: the data told them apart. The joint refit is not repeated from there:
+    the effect's values, and the fit's spread between its nearest aliases no longer widens the moved
+    parameters' standard errors: the data told them apart. An effect with a comb then has its
+    standard errors widened by its spread over every comb point the record does not reject
+    (:func:`_alias_spread`). The joint refit is not repeated from there:
     the held-out part judged the alias with the calibrated parameters as they are (the
     validation page has the measured comparison).
 
@@ -699,17 +701,67 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
                              lambda t, a=a, m=m: [e for b in out.accepted
                                                   for e in (m.build(t) if b is a else b["model"].build(b["theta"]))],
                              z_crit)
-        if best is None:
+        if best is not None:
+            z, t, eff, pred = best
+            _log(progress, f"final model: {m.name} at its alias {dict(zip(m.params, t.tolist()))} improves the "
+                           f"held-out part (z {z:.1f} > {z_crit:.2f}): taken")
+            moved = t != np.asarray(a["theta"], float)
+            a["alias_sd"] = np.where(moved, 0.0, a.get("alias_sd", np.zeros(len(t))))
+            a["theta"] = t
+            a["se"] = np.hypot(a.get("se_local", a["se"]), a["alias_sd"])
+            a["alias_resolved"] = {"z": z, "params": [p for p, mv in zip(m.params, moved) if mv]}
+            out.effects, out.final = eff, pred
+        if m.comb is not None:
+            spread, plausible = _alias_spread(cmp, out, a, z_crit)
+            a["alias_sd"] = np.maximum(a.get("alias_sd", np.zeros(len(spread))), spread)
+            a["se"] = np.hypot(a.get("se_local", a["se"]), a["alias_sd"])
+            a["alias_spread"] = {"plausible": plausible, "sd": dict(zip(m.params, spread.tolist()))}
+            if plausible:
+                _log(progress, f"final model: {m.name}: {len(plausible)} whole-sample alias(es) neither part rejects "
+                               f"(z > -{z_crit:.2f}): standard errors widened to "
+                               f"{dict(zip(m.params, np.round(a['se'], 9).tolist()))}")
+
+
+def _alias_spread(cmp: Comparison, out: SearchResult, a: dict, z_crit: float) -> tuple:
+    r"""The spread of an accepted effect over the points of its comb
+    (:attr:`ssamb.device.EffectModel.comb`) that the record does not reject.
+
+    Each comb point :math:`t` replaces the effect's values in the final model (the calibrated
+    parameters and the other effects as they are) and is replayed (the mean of the comparison's
+    replays). It is *plausible* when neither part of the record rejects it: its improvement
+    :math:`z` over the final model (:func:`ssamb.closeloop.fit.improvement_z`) is above
+    :math:`-z_c` on the held-out part and on the fitting part, :math:`z_c` the acceptance
+    level. With the reported point :math:`\hat\theta` and the :math:`n_j` plausible points that
+    differ from it in parameter :math:`j`, equally likely,
+
+    .. math:: s_j = \sqrt{\frac{\sum_t (t_j - \hat\theta_j)^2}{1 + n_j}},
+
+    the root mean square error of reporting :math:`\hat\theta_j` when the truth is any of them
+    (two points :math:`d` apart: :math:`d/\sqrt 2`). Added in quadrature to the local standard
+    error, it keeps an interval honest where the data fix a delay's fraction of a sample (the
+    PWM's aliased lines) but not its whole number of samples.
+
+    Returns ``(s, plausible)``: ``s`` per parameter, ``plausible`` the points as dicts with
+    both :math:`z`.
+    """
+    m = a["model"]
+    theta = np.asarray(a["theta"], float)
+    base = Base(out.overrides, out.effects, out.final)
+    sq, count, plausible = np.zeros(len(theta)), np.ones(len(theta)), []
+    for t in m.comb(theta):
+        t = np.clip(t, m.lower, m.upper)
+        if np.all(t == theta):
             continue
-        z, t, eff, pred = best
-        _log(progress, f"final model: {m.name} at its alias {dict(zip(m.params, t.tolist()))} improves the held-out "
-                       f"part (z {z:.1f} > {z_crit:.2f}): taken")
-        moved = t != np.asarray(a["theta"], float)
-        a["alias_sd"] = np.where(moved, 0.0, a.get("alias_sd", np.zeros(len(t))))
-        a["theta"] = t
-        a["se"] = np.hypot(a.get("se_local", a["se"]), a["alias_sd"])
-        a["alias_resolved"] = {"z": z, "params": [p for p, mv in zip(m.params, moved) if mv]}
-        out.effects, out.final = eff, pred
+        eff = [e for b in out.accepted for e in (m.build(t) if b is a else b["model"].build(b["theta"]))]
+        pred = cmp.prediction(out.overrides, eff)
+        z_hold = improvement_z(cmp, cmp.hold, base, pred, out.overrides, eff)
+        z_fit = improvement_z(cmp, cmp.fit, base, pred, out.overrides, eff)
+        if min(z_hold, z_fit) > -z_crit:
+            moved = t != theta
+            sq += np.where(moved, (t - theta) ** 2, 0.0)
+            count += moved
+            plausible.append({**dict(zip(m.params, t.tolist())), "z_hold": float(z_hold), "z_fit": float(z_fit)})
+    return np.sqrt(sq / count), plausible
 
 
 def joint_start(cal: Calibration, base: Base, free: list, spare: list, effects_found: bool) -> np.ndarray:

@@ -110,7 +110,8 @@ def model(hints: dict, record, st) -> EffectModel | str:
                        lambda t: [{"name": NAME, "axis": a, "delay_s": float(v)} for a, v in zip(axes, t)],
                        {"axes": axes}, _grid(th, hinted, 1.0 / float(record.fs_hz)),
                        mirrors=functools.partial(_mirrors, ts=1.0 / float(record.fs_hz)),
-                       aliases=functools.partial(_aliases, ts=1.0 / float(record.fs_hz)))
+                       aliases=functools.partial(_aliases, ts=1.0 / float(record.fs_hz)),
+                       comb=functools.partial(_comb, ts=1.0 / float(record.fs_hz)))
 
 
 def _mirrors(theta: np.ndarray, ts: float, near: float = 0.25) -> list:
@@ -141,6 +142,23 @@ def _aliases(theta: np.ndarray, ts: float) -> list:
             if d + s >= 0.0:
                 t = np.array(theta, float)
                 t[i] = d + s
+                out.append(t)
+    return out
+
+
+def _comb(theta: np.ndarray, ts: float, top: float = 120e-6) -> list:
+    r"""The fitted delays every whole controller sample :math:`kT_s` longer and shorter within the
+    search range :math:`[0, \max(\text{top}, \tau + T_s)]` (the coarse starts' range,
+    :func:`_grid`), one axis at a time: the aliases (:func:`_aliases`) at every distance. On an
+    axis the excitation does not drive, the whole number of samples shows only in the phase of
+    the loop's noise response, and two samples off can fit the record as well as one."""
+    out = []
+    for i, d in enumerate(np.asarray(theta, float)):
+        hi = max(top, d + ts)
+        for k in range(-int(np.floor(d / ts + 1e-9)), int(np.floor((hi - d) / ts + 1e-9)) + 1):
+            if k != 0:
+                t = np.array(theta, float)
+                t[i] = max(d + k * ts, 0.0)
                 out.append(t)
     return out
 
