@@ -19,8 +19,9 @@ the recording's ball or its own model, replayed on the draw's record, drops the 
 held-out test of the rig with the effect over the same rig without it); the reasons are counted
 (``refused``). The rig gets one library effect with a size drawn from its range (:data:`SIZES`),
 among the effects the device can identify on that recording, or none in the null draws. The
-rig's data are a replay of that rig driven by the recording's reference, from its states, with a
-seed of its own and its converters rounding as a rig's do; the analysis
+rig's data are a replay of that rig driven by the recording's reference, each levitated stretch from
+the recording's state at its start but with the controller's state that the rig's own log gives there
+(:meth:`Maglev1D.rig_log`), with a seed of its own and its converters rounding as a rig's do; the analysis
 (:func:`ssamb.closeloop.analyse`) sees only the data and the published-parameter model.
 ``--unbalanced --any-size`` draws the rigs as before these conditions (same draws).
 
@@ -302,10 +303,11 @@ def drawable(dev, cfg, settings) -> tuple[dict, dict]:
     return names, unidentifiable
 
 
-def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, shown=True) -> dict:
+def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, shown=True, consistent=True) -> dict:
     """Draw ``k``'s recording, effect, rig and data (module docstring): a dict with ``path``,
     ``true``, ``ov``, ``rig``, ``data``, ``meta``, ``refused`` and ``shows``; ``data`` is None when
-    no rig in 20 levitates (``failure`` says why)."""
+    no rig in 20 levitates (``failure`` says why). ``consistent``: each stretch replayed from the
+    state the drawn log gives (:meth:`Maglev1D.rig_log`); else every stretch from the recording's state."""
     from ssamb.device import get_device
     from ssamb.io import DataError
 
@@ -324,9 +326,13 @@ def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, sho
         ov, rig = _rig_config(dev, cfg, center, rng, rec if balance else None, true, spread, why)
         # the rig's data round (the model's replays add the rounding errors: ssamb.maglev1d.physics)
         as_rig = {**rig, "replay": {**rig["replay"], "additive_quantisers": 0}}
-        out = dev.replay(as_rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
-        data = {**arrays, **{c: out.channels[c] for c in dev.channels}}
-        if out.contact:
+        if consistent:
+            out = dev.rig_log(as_rig, rec, [true] if true else [], int(rng.integers(1, 10_000)))
+            data, contact = {**arrays, **{c: out.channels[c] for c in dev.channels}}, out.contact
+        else:
+            out = dev.replay(as_rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
+            data, contact = {**arrays, **{c: out.channels[c] for c in dev.channels}}, out.contact
+        if contact:
             why.update(["its data touch a stop"])
             continue
         try:
@@ -351,13 +357,13 @@ def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, sho
 
 
 def run_draw(args) -> dict:
-    k, with_effect, seed, center, names, spread, balance, only_rigs, shown = args
+    k, with_effect, seed, center, names, spread, balance, only_rigs, shown, consistent = args
     from ssamb.closeloop import analyse
     from ssamb.device import get_device
 
     dev = get_device("maglev1d")
     cfg = dev.default_config()
-    dr = make_draw(k, with_effect, seed, center, names, spread, balance, shown)
+    dr = make_draw(k, with_effect, seed, center, names, spread, balance, shown, consistent)
     path, true, why = dr["path"], dr["true"], dr["refused"]
     if dr["data"] is None:
         return {"draw": k, "effect": true, "recording": path.stem, "refused": why, "failures": [dr["failure"]]}
@@ -399,6 +405,9 @@ def main() -> None:
                     help="rigs not conditioned on the recording's balance and levels (the suite before that)")
     ap.add_argument("--any-size", action="store_true",
                     help="keep an effect whose size its rig's data do not show (effect_shows)")
+    ap.add_argument("--recording-states", action="store_true",
+                    help="replay every stretch of a rig's log from the recording's controller state instead of "
+                         "the state its own log gives (the suite before Maglev1D.rig_log)")
     ap.add_argument("--only-rigs", action="store_true",
                     help="draw the rigs and their data, count the refused draws, analyse nothing")
     a = ap.parse_args()
@@ -416,7 +425,7 @@ def main() -> None:
         recs = sorted(why)
         where = "on every recording" if len(recs) == len(RECORDINGS) else f"on {', '.join(recs)}"
         print(f"not drawn {where} ({n}): {next(iter(why.values()))}", flush=True)
-    opts = (a.spread, not a.unbalanced, a.only_rigs, not a.any_size)
+    opts = (a.spread, not a.unbalanced, a.only_rigs, not a.any_size, not a.recording_states)
     jobs = [(k, True, a.seed, center, names, *opts) for k in range(a.draws)]
     jobs += [(a.draws + k, False, a.seed, center, names, *opts) for k in range(a.null)]
     t0 = time.perf_counter()

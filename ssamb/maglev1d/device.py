@@ -509,6 +509,37 @@ class Maglev1D(Device):
         return {"t": np.arange(n) * float(cfg["controller"]["ts_s"]), "y": out["y"], "i": out["i"], "u": out["u"],
                 "yd": yd.copy()}
 
+    def rig_log(self, cfg: Mapping, record: Record, effects: list | None = None, seed: int | None = None) -> Replay:
+        """A rig's own log on the reference of ``record`` (optional, beyond :class:`ssamb.device.Device`;
+        for rigs drawn for the randomized suite and tests): the model ``cfg`` with ``effects`` replayed
+        over each usable stretch, in time order, from the state the log *as simulated so far* gives at
+        the stretch's start; outside the stretches the record's own samples.
+
+        A replay (:meth:`replay`) starts a stretch from the log: the position, velocity and current
+        read there and the controller's state before it, which :meth:`record` reconstructs by running
+        the controller over the whole log (its integrators carry every earlier sample). A rig's log
+        must be consistent with that reconstruction: the state a later stretch starts from follows
+        from the earlier stretches *as this rig ran them*, not as the recording's rig did (started
+        from the recording's state, a later stretch of the rig's log begins with a transient that its
+        own model, replayed from that log, does not reproduce). The noise of a sample is the same in
+        every stretch's replay (one ``seed``, the record's length).
+        """
+        import dataclasses
+
+        qy, qi = _ctl.position_lsb_m(cfg), _ctl.current_lsb_a(cfg)
+        ch = {c: np.array(record.channels[c], float) for c in self.channels}
+        contact = False
+        for a, b in record.usable:
+            _, states = _ctl.run(qy * np.round(ch["y"] / qy), qi * np.round(ch["i"] / qi), record.inputs["yd"],
+                                 _ctl.gains_of(cfg))
+            one = dataclasses.replace(record, channels={c: ch[c].copy() for c in self.channels}, usable=((a, b),),
+                                      meta={**record.meta, "controller_states": states})
+            out = self.replay(cfg, one, effects or [], record.n, seed)
+            for c in self.channels:
+                ch[c][a:b] = out.channels[c][a:b]
+            contact = contact or bool(out.contact)
+        return Replay(channels=ch, contact=contact)
+
     def balanced(self, cfg: Mapping, record: Record, effects: list | None = None, span_s: float = 0.3) -> dict:
         r"""The force constant and the stage's full-scale voltage that put the model (``cfg`` with
         ``effects``) in the balance the record shows at the start of each usable part (optional,
