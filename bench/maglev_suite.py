@@ -389,72 +389,34 @@ def run_draw(args) -> dict:
             "calibration_stopped_short": bool(rep.get("calibration", {}).get("stopped_short", False))}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--draws", type=int, default=24, help="draws with an effect")
-    ap.add_argument("--null", type=int, default=20, help="draws without an effect")
-    ap.add_argument("--seed", type=int, default=20261126)
-    ap.add_argument("--processes", type=int, default=2)
-    ap.add_argument("--center", default=str(REPO / "results" / "rigs" / "maglev1d" / "closeloop.json"),
-                    help="closeloop.json of the real rig (its parameters are the rigs' centre)")
-    ap.add_argument("--out", default="maglev_suite.jsonl")
-    ap.add_argument("--spread", type=float, default=1.0,
-                    help="rigs within this many prior standard deviations of the centre (1: the suite; "
-                         "smaller: a diagnostic of the effect search alone)")
-    ap.add_argument("--unbalanced", action="store_true",
-                    help="rigs not conditioned on the recording's balance and levels (the suite before that)")
-    ap.add_argument("--any-size", action="store_true",
-                    help="keep an effect whose size its rig's data do not show (effect_shows)")
-    ap.add_argument("--recording-states", action="store_true",
-                    help="replay every stretch of a rig's log from the recording's controller state instead of "
-                         "the state its own log gives (the suite before Maglev1D.rig_log)")
-    ap.add_argument("--only-rigs", action="store_true",
-                    help="draw the rigs and their data, count the refused draws, analyse nothing")
-    a = ap.parse_args()
-    from ssamb.closeloop.settings import settings_from_config
-    from ssamb.device import get_device
+def coverage(rows: list) -> dict:
+    """Per calibrated parameter reported in ``rows`` (draws), the error of its estimate in its own
+    standard errors, :math:`|\hat p - p| / s`, against the drawn rig's value: the count and the
+    shares within 2 and 3 standard errors (0.954 and 0.997 for honest errors)."""
+    z = {}
+    for d in rows:
+        for key, (v, se, t) in (d.get("parameters") or {}).items():
+            if t is not None and se and math.isfinite(se) and se > 0:
+                z.setdefault(key, []).append(abs(v - t) / se)
+    return {k: {"n": len(x), "within_2": float(np.mean(np.array(x) < 2)), "within_3": float(np.mean(np.array(x) < 3))}
+            for k, x in z.items()}
 
-    dev = get_device("maglev1d")
-    cfg = dev.default_config()
-    settings = settings_from_config(cfg, dev)
-    names, unidentifiable = drawable(dev, cfg, settings)
-    center = _center(dev, cfg, a.center)
-    drawn = sorted({n for v in names.values() for n in v})
-    print(f"effects drawn: {', '.join(drawn)}", flush=True)
-    for n, why in unidentifiable.items():
-        recs = sorted(why)
-        where = "on every recording" if len(recs) == len(RECORDINGS) else f"on {', '.join(recs)}"
-        print(f"not drawn {where} ({n}): {next(iter(why.values()))}", flush=True)
-    opts = (a.spread, not a.unbalanced, a.only_rigs, not a.any_size, not a.recording_states)
-    jobs = [(k, True, a.seed, center, names, *opts) for k in range(a.draws)]
-    jobs += [(a.draws + k, False, a.seed, center, names, *opts) for k in range(a.null)]
-    t0 = time.perf_counter()
-    res = []
-    with mp.get_context("fork").Pool(a.processes) as pool, open(a.out, "a") as fh:
-        for d in pool.imap_unordered(run_draw, jobs):
-            res.append(d)
-            fh.write(json.dumps(d, default=float) + "\n")
-            fh.flush()
-            tr = d.get("truth")
-            vs = (f" [truth vs final: cost ratio fit {tr['fit']['cost_ratio']:.3f} "
-                  f"(p {tr['fit']['p_truth_better']:.2g}), "
-                  f"held out {tr['holdout']['cost_ratio']:.3f} (p {tr['holdout']['p_truth_better']:.2g})"
-                  f"; stop hit by truth {tr['contacts']['truth']}, final {tr['contacts']['final']} of {REPLAYS}"
-                  f"; engine's held-out z of the truth over the final model {tr['engine']['z']:.1f}"
-                  f" (group {tr['engine']['group']} {tr['engine']['z_group']:.1f})"
-                  f"{'' if tr['visible'] or not d['effect'] else ': INVISIBLE'}]") if tr else ""
-            print(f"draw {d['draw']:3d} {d['effect']['name'] if d['effect'] else 'none':18s} "
-                  f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}{vs}", flush=True)
+
+def summarize(res: list, drawn: list, only_rigs: bool = False) -> None:
+    """Print the suite's figures for the draws ``res`` (module docstring)."""
     nodata = [d for d in res if d["failures"] and d["failures"][0].startswith("no rig that levitates")]
     refused = sum((Counter(d.get("refused", {})) for d in res), Counter())
     print(f"\ndraws without data (no rig within the spread levitates on the drawn recording): {len(nodata)} of "
           f"{len(res)}; rigs refused before each draw's rig: {sum(refused.values())} ({dict(refused)})")
-    if a.only_rigs:
-        sys.exit(0)
+    if only_rigs:
+        return
     eff = [d for d in res if d["effect"]]
     null = [d for d in res if not d["effect"]]
     ok = sum(not d["failures"] for d in eff)
     print(f"\nwith an effect: {ok} of {len(eff)} pass ({100 * ok / max(len(eff), 1):.0f} %)")
+    for half, r in (("odd (the acceptance half)", 1), ("even (the development half)", 0)):
+        sel = [d for d in eff if d["draw"] % 2 == r]
+        print(f"  {half} draws: {sum(not d['failures'] for d in sel)} of {len(sel)}")
     judged = [d for d in eff if d.get("truth")]
     vis = [d for d in judged if d["truth"]["visible"]]
     inv = [d for d in judged if not d["truth"]["visible"]]
@@ -490,6 +452,79 @@ def main() -> None:
           f"{sum(d['truth']['contacts']['final'] >= REPLAYS // 2 for d in nj)}")
     print(f"noise only: {alarms} of {len(null)} declared an effect"
           f"{f' ({sum(d in nodata for d in null)} without data: no rig that levitates)' if nodata else ''}")
+    for label, sel in (("noise-only draws", [d for d in res if not d["effect"]]),
+                       ("draws whose effect was found", [d for d in res if d["effect"] and not d["failures"]])):
+        cov = coverage(sel)
+        if cov:
+            n = sum(c["n"] for c in cov.values())
+            w2 = sum(c["n"] * c["within_2"] for c in cov.values()) / n
+            w3 = sum(c["n"] * c["within_3"] for c in cov.values()) / n
+            print(f"coverage of the calibrated parameters' standard errors, {label}: {n} estimates, within 2 se "
+                  f"{w2:.2f}, within 3 se {w3:.2f} (honest: 0.95, 0.997); " + ", ".join(
+                      f"{k} {c['within_3']:.2f} of {c['n']}" for k, c in cov.items()))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--draws", type=int, default=24, help="draws with an effect")
+    ap.add_argument("--null", type=int, default=20, help="draws without an effect")
+    ap.add_argument("--seed", type=int, default=20261126)
+    ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--center", default=str(REPO / "results" / "rigs" / "maglev1d" / "closeloop.json"),
+                    help="closeloop.json of the real rig (its parameters are the rigs' centre)")
+    ap.add_argument("--out", default="maglev_suite.jsonl")
+    ap.add_argument("--spread", type=float, default=1.0,
+                    help="rigs within this many prior standard deviations of the centre (1: the suite; "
+                         "smaller: a diagnostic of the effect search alone)")
+    ap.add_argument("--unbalanced", action="store_true",
+                    help="rigs not conditioned on the recording's balance and levels (the suite before that)")
+    ap.add_argument("--any-size", action="store_true",
+                    help="keep an effect whose size its rig's data do not show (effect_shows)")
+    ap.add_argument("--recording-states", action="store_true",
+                    help="replay every stretch of a rig's log from the recording's controller state instead of "
+                         "the state its own log gives (the suite before Maglev1D.rig_log)")
+    ap.add_argument("--summary", metavar="JSONL", help="print the figures of a finished run's --out file, run nothing")
+    ap.add_argument("--only-rigs", action="store_true",
+                    help="draw the rigs and their data, count the refused draws, analyse nothing")
+    a = ap.parse_args()
+    from ssamb.closeloop.settings import settings_from_config
+    from ssamb.device import get_device
+
+    dev = get_device("maglev1d")
+    cfg = dev.default_config()
+    settings = settings_from_config(cfg, dev)
+    names, unidentifiable = drawable(dev, cfg, settings)
+    drawn = sorted({n for v in names.values() for n in v})
+    if a.summary:
+        summarize([json.loads(line) for line in open(a.summary)], drawn)
+        sys.exit(0)
+    center = _center(dev, cfg, a.center)
+    print(f"effects drawn: {', '.join(drawn)}", flush=True)
+    for n, why in unidentifiable.items():
+        recs = sorted(why)
+        where = "on every recording" if len(recs) == len(RECORDINGS) else f"on {', '.join(recs)}"
+        print(f"not drawn {where} ({n}): {next(iter(why.values()))}", flush=True)
+    opts = (a.spread, not a.unbalanced, a.only_rigs, not a.any_size, not a.recording_states)
+    jobs = [(k, True, a.seed, center, names, *opts) for k in range(a.draws)]
+    jobs += [(a.draws + k, False, a.seed, center, names, *opts) for k in range(a.null)]
+    t0 = time.perf_counter()
+    res = []
+    with mp.get_context("fork").Pool(a.processes) as pool, open(a.out, "a") as fh:
+        for d in pool.imap_unordered(run_draw, jobs):
+            res.append(d)
+            fh.write(json.dumps(d, default=float) + "\n")
+            fh.flush()
+            tr = d.get("truth")
+            vs = (f" [truth vs final: cost ratio fit {tr['fit']['cost_ratio']:.3f} "
+                  f"(p {tr['fit']['p_truth_better']:.2g}), "
+                  f"held out {tr['holdout']['cost_ratio']:.3f} (p {tr['holdout']['p_truth_better']:.2g})"
+                  f"; stop hit by truth {tr['contacts']['truth']}, final {tr['contacts']['final']} of {REPLAYS}"
+                  f"; engine's held-out z of the truth over the final model {tr['engine']['z']:.1f}"
+                  f" (group {tr['engine']['group']} {tr['engine']['z_group']:.1f})"
+                  f"{'' if tr['visible'] or not d['effect'] else ': INVISIBLE'}]") if tr else ""
+            print(f"draw {d['draw']:3d} {d['effect']['name'] if d['effect'] else 'none':18s} "
+                  f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}{vs}", flush=True)
+    summarize(res, drawn, a.only_rigs)
     secs = [d.get("seconds", math.nan) for d in res]
     print(f"wall {time.perf_counter() - t0:.0f} s on {a.processes} processes; median {np.nanmedian(secs):.0f} s per "
           f"analysis; load average {os.getloadavg()[0]:.1f}")
