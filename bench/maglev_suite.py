@@ -390,7 +390,7 @@ def run_draw(args) -> dict:
 
 
 def coverage(rows: list) -> dict:
-    """Per calibrated parameter reported in ``rows`` (draws), the error of its estimate in its own
+    r"""Per calibrated parameter reported in ``rows`` (draws), the error of its estimate in its own
     standard errors, :math:`|\hat p - p| / s`, against the drawn rig's value: the count and the
     shares within 2 and 3 standard errors (0.954 and 0.997 for honest errors)."""
     z = {}
