@@ -354,17 +354,12 @@ def test_a_weak_effect_is_weighed_by_the_held_out_part(monkeypatch, z_zeroed, z_
 
     from ssamb.closeloop import search
 
-    @dataclasses.dataclass
-    class Fit:
-        theta: np.ndarray
-        cov: np.ndarray
-        cov_misfit: np.ndarray
-        se: np.ndarray
-        se_misfit: np.ndarray
+    from ssamb.closeloop.estimate import MapFit
 
     def fit_of(theta, var):
-        c = np.diag(var)
-        return Fit(np.array(theta), c, c, np.sqrt(var), np.sqrt(var))
+        c = np.diag(var)                 # a real MapFit: its standard errors are its covariances' diagonals
+        return MapFit(np.array(theta), c, c, np.zeros((0, len(theta))), np.zeros((len(theta),) * 2), 0.0, 0, 0.0,
+                      0, 0, True)
 
     load = _amb_model("static_load", {"axes": ["x", "y"]})
     dead = _amb_model("amplifier_deadtime", {})

@@ -608,8 +608,8 @@ def _with_null(alt: tuple, a: dict, models: list, cuts: np.ndarray, fit, out: Se
             return np.concatenate([x[:lo], np.zeros(n), x[lo:]])
         y = np.insert(x, [lo] * n, 0.0, axis=0)
         return np.insert(y, [lo] * n, 0.0, axis=1)
-    f = dataclasses.replace(alt[0], theta=th, se=grow(alt[0].se), se_misfit=grow(alt[0].se_misfit),
-                            cov=grow(alt[0].cov), cov_misfit=grow(alt[0].cov_misfit))
+    # the standard errors are the covariances' diagonals (MapFit.se, se_misfit): grown with them
+    f = dataclasses.replace(alt[0], theta=th, cov=grow(alt[0].cov), cov_misfit=grow(alt[0].cov_misfit))
     return (f, alt[1], alt[2], alt[3], models, cuts, alt[6])
 
 
