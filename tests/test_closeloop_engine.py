@@ -349,7 +349,6 @@ def test_a_weak_effect_is_weighed_by_the_held_out_part(monkeypatch, z_zeroed, z_
     model is worse, it goes and the final model is the refit without it if that has the lower
     joint objective (its load, 17.5 and -4.5, and its covariance with a zero row for the dead
     time), the zeroed model otherwise. :func:`_drop_null_effects` then reports what went."""
-    import dataclasses
     from types import SimpleNamespace
 
     from ssamb.closeloop import search
