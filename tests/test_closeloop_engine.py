@@ -643,6 +643,24 @@ def test_a_fit_whose_steps_no_longer_lower_the_cost_stops():
     assert cut.theta[0] == pytest.approx(3.0, abs=0.05)
 
 
+def _alias_comparison(monkeypatch, z_hold: dict, z_fit: dict):
+    """A comparison whose prediction is the effect's delay and whose improvement z of a delay
+    over the final model is read from ``z_hold`` (held-out part) and ``z_fit`` (fitting part):
+    the alias checks of :mod:`ssamb.closeloop.search` without replays."""
+    from ssamb.closeloop import search
+
+    class Cmp:
+        hold = "held-out part"
+        fit = "fitting part"
+
+        def prediction(self, overrides, effects):
+            return {"delay": effects[0]["delay"]}
+
+    monkeypatch.setattr(search, "improvement_z", lambda cmp, part, base, pred, ov, eff:
+                        (z_hold if part == Cmp.hold else z_fit)[pred["delay"]])
+    return Cmp
+
+
 def test_an_alias_replaces_a_fit_only_when_the_held_out_part_prefers_it_significantly(monkeypatch):
     """:func:`ssamb.closeloop.search._better_alias` (the final model's and every candidate's alias
     check): of the aliases whose held-out improvement over the fit exceeds the critical z and that
@@ -656,15 +674,7 @@ def test_an_alias_replaces_a_fit_only_when_the_held_out_part_prefers_it_signific
     z_of = {12.0: 5.0, -12.0: 7.0, 24.0: 3.0}          # held-out z of each alias over the fit at 0
     z_fit = {12.0: 1.0, -12.0: 0.5, 24.0: 1.0}         # the same on the fitting part
 
-    class Cmp:
-        hold = "held-out part"
-        fit = "fitting part"
-
-        def prediction(self, overrides, effects):
-            return {"delay": effects[0]["delay"]}
-
-    monkeypatch.setattr(search, "improvement_z", lambda cmp, part, base, pred, ov, eff:
-                        (z_of if part == Cmp.hold else z_fit)[pred["delay"]])
+    Cmp = _alias_comparison(monkeypatch, z_of, z_fit)
     model = SimpleNamespace(lower=np.array([-12.0]), upper=np.array([24.0]),
                             aliases=lambda t: [t + 12.0, t - 12.0, t - 30.0])
     build = lambda t: [{"delay": float(t[0])}]                     # noqa: E731
@@ -693,15 +703,7 @@ def test_a_delays_spread_over_its_comb_counts_every_point_the_record_does_not_re
     z_hold = {15.0: -5.0, 39.0: -3.7, 51.0: -2.0, 63.0: -3.0, 75.0: -8.0}
     z_fit = {15.0: 0.5, 39.0: 1.0, 51.0: 0.3, 63.0: -3.2, 75.0: 0.0}
 
-    class Cmp:
-        hold = "held-out part"
-        fit = "fitting part"
-
-        def prediction(self, overrides, effects):
-            return {"delay": effects[0]["delay"]}
-
-    monkeypatch.setattr(search, "improvement_z", lambda cmp, part, base, pred, ov, eff:
-                        (z_hold if part == Cmp.hold else z_fit)[pred["delay"]])
+    Cmp = _alias_comparison(monkeypatch, z_hold, z_fit)
     model = SimpleNamespace(params=("delay_x_s",), lower=np.array([0.0]), upper=np.array([1e3]),
                             build=lambda t: [{"delay": float(t[0])}],
                             comb=lambda t: [t + k for k in (-12.0, 12.0, 24.0, 36.0, 48.0)])
