@@ -483,6 +483,8 @@ def main() -> None:
     ap.add_argument("--recording-states", action="store_true",
                     help="replay every stretch of a rig's log from the recording's controller state instead of "
                          "the state its own log gives (the suite before Maglev1D.rig_log)")
+    ap.add_argument("--null-first", action="store_true",
+                    help="run the noise-only draws before the draws with an effect (the same draws)")
     ap.add_argument("--summary", metavar="JSONL", help="print the figures of a finished run's --out file, run nothing")
     ap.add_argument("--only-rigs", action="store_true",
                     help="draw the rigs and their data, count the refused draws, analyse nothing")
@@ -507,6 +509,8 @@ def main() -> None:
     opts = (a.spread, not a.unbalanced, a.only_rigs, not a.any_size, not a.recording_states)
     jobs = [(k, True, a.seed, center, names, *opts) for k in range(a.draws)]
     jobs += [(a.draws + k, False, a.seed, center, names, *opts) for k in range(a.null)]
+    if a.null_first:
+        jobs = jobs[a.draws:] + jobs[:a.draws]
     t0 = time.perf_counter()
     res = []
     with mp.get_context("fork").Pool(a.processes) as pool, open(a.out, "a") as fh:

@@ -373,3 +373,24 @@ def test_an_effect_with_which_every_joint_start_drops_the_body_is_contradicted(m
     assert out["effects"] == [] and out["joint_calibration"]["start"] != "nominal"
     (r,) = out["effects_rejected"]
     assert r["name"] == "bias" and r["holdout_z"] is None and "drops the body" in r["contradicted"]
+
+
+def test_noise_read_about_the_calibrated_model():
+    """Steps (no periodic excitation): the data's noise is read off the residual from a model's
+    replays. Read about the nominal start (the plant gain 8 % off), the start's misfit counts as
+    noise; with ``noise_at_calibration`` it is read again about the calibrated model, and the DC's
+    variance is the one read about the rig's own model."""
+    from ssamb.closeloop import _analyse
+
+    arrays = _data({"plant": {"a": 0.95, "b_gain": 1.08}}, [])
+    var = {}
+    for flag in (False, True):
+        cfg = {**CFG, "closeloop": {**CFG["closeloop"], "noise_at_calibration": flag}}
+        rep, art = _analyse(arrays, {}, cfg, device=Toy())
+        cmp = art["comparison"]
+        var[flag] = np.diag(cmp.fit.data.cov_dc).copy()
+        assert abs(rep["parameters"]["plant.b_gain"]["value"] - 1.08) < 0.01
+    cmp.calibrate_noise({"plant.b_gain": 1.08})
+    truth = np.diag(cmp.fit.data.cov_dc)
+    np.testing.assert_allclose(var[True], truth, rtol=0.01)
+    assert var[False][0] > 1.3 * truth[0]

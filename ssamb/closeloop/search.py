@@ -5,7 +5,9 @@ held-out data, then refit everything jointly.
    parameters, MAP on the fitting part's features. A parameter driven beyond ``conflict_z``
    tolerances conflicts with its stated tolerance -- usually an effect the model lacks, which the
    parameter absorbs (a sensor gain error in the self-sensing calibration gain); the evidence is
-   then read with it at its nominal value (what it absorbed shows).
+   then read with it at its nominal value (what it absorbed shows). With ``noise_at_calibration``
+   the noise is read again about the calibrated model (a record without a periodic excitation
+   reads it off a residual, :meth:`ssamb.closeloop.comparison.Comparison.calibrate_noise`).
 2. **Rounds** (base = calibrated model + the effects accepted so far): the features of the base
    residual (:mod:`ssamb.closeloop.residual`), the evidence of every library effect
    (:mod:`ssamb.closeloop.signatures`), the held-out consistency test (:func:`consistency`). The
@@ -807,6 +809,9 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     out.calibration = cal
     _log(progress, f"calibration: {sum(d['identified'] for d in cal.ident['per_parameter'].values())} of {len(specs)} "
                    f"parameters identified; conflicts {cal.conflicts or 'none'} ({time.perf_counter() - t0:.1f} s)")
+    if settings.noise_at_calibration and specs and cal.fit is not None:
+        # the noise read about the calibrated model: the start's misfit is no noise of the data
+        cmp.calibrate_noise(cal.overrides())
     out.calibrated = cmp.prediction(cal.overrides())
     # every calibrated parameter is refitted with every candidate (the maximum a posteriori of
     # parameters and effect together), starting where the data put the identified ones and the

@@ -74,6 +74,14 @@ class Settings:
         parameters), each with its own design, of which the one whose replays drop the body
         least and fit the fitting data best is kept (:func:`ssamb.closeloop.estimate.best_fit`):
         where a fit's end depends on its path, the best of several is less so.
+    noise_at_calibration : bool
+        Read the noise again about the calibrated model before the effect search
+        (:meth:`ssamb.closeloop.comparison.Comparison.calibrate_noise`). A part without a periodic
+        excitation reads the data's noise off the residual of the data from a model's replays;
+        read about the calibration's start only, whatever that start misfits -- its parameters'
+        errors, and the very effect the search is after -- counts as noise in every later test,
+        and a held-out improvement it hides is not seen. Off by default: a periodic excitation
+        reads the data's noise off the data alone.
     calibration_step_rel : float
         Largest finite-difference step of a relative parameter (a wider tolerance reaches where
         the response is no longer linear).
@@ -147,6 +155,7 @@ class Settings:
     calibration: dict | None = None
     session: tuple = ()
     calibration_restarts: int = 1
+    noise_at_calibration: bool = False
     calibration_step_rel: float = 0.05
     identifiable_ratio: float = 1.0 / 3.0
     conflict_z: float = 3.0
