@@ -809,10 +809,11 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     out.calibration = cal
     _log(progress, f"calibration: {sum(d['identified'] for d in cal.ident['per_parameter'].values())} of {len(specs)} "
                    f"parameters identified; conflicts {cal.conflicts or 'none'} ({time.perf_counter() - t0:.1f} s)")
-    if settings.noise_at_calibration and specs and cal.fit is not None:
-        # the noise read about the calibrated model: the start's misfit is no noise of the data
-        cmp.calibrate_noise(cal.overrides())
     out.calibrated = cmp.prediction(cal.overrides())
+    if settings.noise_at_calibration and specs and cal.fit is not None and not out.calibrated["delevitated_share"]:
+        # the noise read about the calibrated model (the start's misfit is no noise of the data),
+        # where its replays keep the body up: replays that drop it are no model of the rig's noise
+        cmp.calibrate_noise(cal.overrides())
     # every calibrated parameter is refitted with every candidate (the maximum a posteriori of
     # parameters and effect together), starting where the data put the identified ones and the
     # others -- unidentified, or conflicting with their tolerance -- at their prior mean: along a

@@ -80,8 +80,9 @@ class Settings:
         excitation reads the data's noise off the residual of the data from a model's replays;
         read about the calibration's start only, whatever that start misfits -- its parameters'
         errors, and the very effect the search is after -- counts as noise in every later test,
-        and a held-out improvement it hides is not seen. Off by default: a periodic excitation
-        reads the data's noise off the data alone.
+        and a held-out improvement it hides is not seen. Not where a replay of the calibrated model
+        drops the body (no model of the rig's noise). Off by default: a periodic excitation reads
+        the data's noise off the data alone.
     calibration_step_rel : float
         Largest finite-difference step of a relative parameter (a wider tolerance reaches where
         the response is no longer linear).
