@@ -326,13 +326,10 @@ def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, sho
         ov, rig = _rig_config(dev, cfg, center, rng, rec if balance else None, true, spread, why)
         # the rig's data round (the model's replays add the rounding errors: ssamb.maglev1d.physics)
         as_rig = {**rig, "replay": {**rig["replay"], "additive_quantisers": 0}}
-        if consistent:
-            out = dev.rig_log(as_rig, rec, [true] if true else [], int(rng.integers(1, 10_000)))
-            data, contact = {**arrays, **{c: out.channels[c] for c in dev.channels}}, out.contact
-        else:
-            out = dev.replay(as_rig, rec, [true] if true else [], rec.n, int(rng.integers(1, 10_000)))
-            data, contact = {**arrays, **{c: out.channels[c] for c in dev.channels}}, out.contact
-        if contact:
+        eff, seed_k = [true] if true else [], int(rng.integers(1, 10_000))
+        out = dev.rig_log(as_rig, rec, eff, seed_k) if consistent else dev.replay(as_rig, rec, eff, rec.n, seed_k)
+        data = {**arrays, **{c: out.channels[c] for c in dev.channels}}
+        if out.contact:
             why.update(["its data touch a stop"])
             continue
         try:

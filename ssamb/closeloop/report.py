@@ -121,7 +121,7 @@ def _notes(rec, effects, cal_block, not_ident) -> list:
     for e in effects:
         if e["fit"].get("aliases_plausible"):
             notes.append(f"{e['name']}: {len(e['fit']['aliases_plausible'])} point(s) of its comb (a delay whole "
-                         "controller samples away) fit both parts of the record as well: its standard error holds "
+                         "controller samples away) rejected by neither part of the record: its standard error holds "
                          "their spread")
         if e["fit"]["without_signature"]:
             notes.append(f"{e['name']}: no signature was significant before fitting (round {e['fit']['round']}); "

@@ -114,6 +114,10 @@ def model(hints: dict, record, st) -> EffectModel | str:
                        comb=functools.partial(_comb, ts=1.0 / float(record.fs_hz)))
 
 
+#: the longest delay the coarse starts try and the comb reaches (ten 12 us controller samples)
+SEARCH_TOP_S = 120e-6
+
+
 def _mirrors(theta: np.ndarray, ts: float, near: float = 0.25) -> list:
     r"""The fitted delays reflected across the nearest whole controller sample :math:`kT_s`
     (:math:`k \ge 1`), one axis at a time, where a delay lies within ``near`` of a sample of it:
@@ -146,7 +150,7 @@ def _aliases(theta: np.ndarray, ts: float) -> list:
     return out
 
 
-def _comb(theta: np.ndarray, ts: float, top: float = 120e-6) -> list:
+def _comb(theta: np.ndarray, ts: float, top: float = SEARCH_TOP_S) -> list:
     r"""The fitted delays every whole controller sample :math:`kT_s` longer and shorter within the
     search range :math:`[0, \max(\text{top}, \tau + T_s)]` (the coarse starts' range,
     :func:`_grid`), one axis at a time: the aliases (:func:`_aliases`) at every distance. On an
@@ -163,7 +167,7 @@ def _comb(theta: np.ndarray, ts: float, top: float = 120e-6) -> list:
     return out
 
 
-def _grid(th: np.ndarray, hinted: tuple, ts: float, top: float = 120e-6) -> tuple:
+def _grid(th: np.ndarray, hinted: tuple, ts: float, top: float = SEARCH_TOP_S) -> tuple:
     r"""Coarse starts of a fit: four per controller sample interval, at its eighths 1, 3, 5 and 7
     of each interval :math:`[kT_s, (k+1)T_s)` up to ``top``, and no delay.
 
