@@ -774,3 +774,104 @@ def test_common_seeds_solution_judged_on_fresh_seeds():
     prob.evaluate = lambda theta, seed: evaluate(theta, 0)        # no such offset: the solution is kept
     prob.start = np.array([0.0])
     assert common_seeds_fit(prob, EstimateSettings(common_seeds=4)).theta == pytest.approx([1.0], abs=0.01)
+
+
+def _passing(name: str, value: float):
+    """A candidate that passed, as :func:`ssamb.closeloop.search.champion` reads it: its model's
+    name and parameter, its fit's values, its prediction (here its name)."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(names=(name,), model=SimpleNamespace(name=name, params=("size",)),
+                           fit=SimpleNamespace(theta=np.array([0.1, value])), n_free=1, overrides={}, effects=[],
+                           pred={"name": name})
+
+
+@pytest.mark.parametrize("z_table, choice, rivals", [
+    ({}, "sensor_delay", ["eddy_current"]),                                   # alike: both named
+    ({("sensor_delay", "eddy_current"): 6.0}, "eddy_current", []),          # eddy beats the delay
+    ({("sensor_delay", "eddy_current"): 3.0}, "sensor_delay", ["eddy_current"]),   # not significantly
+    ({("eddy_current", "sensor_delay"): 6.0, ("sensor_delay", "eddy_current"): -6.0}, "sensor_delay", []),
+])
+def test_the_champion_of_a_round_and_its_rivals(monkeypatch, z_table, choice, rivals):
+    """:func:`ssamb.closeloop.search.champion`: starting from the candidate with the largest share
+    explained, a passing candidate that predicts the held-out part better by more than z_c (3.09)
+    replaces it; every other passing one the choice does not beat by more than z_c is a rival,
+    with the choice's z over it. ``z_table[(a, b)]``: how much better b predicts than a (0 when
+    absent)."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search
+
+    monkeypatch.setattr(search, "improvement_z",
+                        lambda cmp, part, base, pred, ov, eff: z_table.get((base.pred["name"], pred["name"]), 0.0))
+    delay, eddy = _passing("sensor_delay", 5.7e-3), _passing("eddy_current", 5.2e-3)
+    cmp = SimpleNamespace(hold="held-out part")
+    base = search.Base({}, [], {})
+    got, riv = search.champion(cmp, base, [delay, eddy], delay, SimpleNamespace(alpha_accept=1e-3))
+    assert got.model.name == choice
+    assert [r["name"] for r in riv] == rivals
+    for r in riv:
+        assert r["params"] == {"size": 5.2e-3} and r["z"] == z_table.get(("eddy_current", "sensor_delay"), 0.0)
+
+
+@pytest.mark.parametrize("z_nested, passes", [(1.0, False), (5.0, True)])
+def test_a_candidate_must_beat_the_parameters_refitted_alone(monkeypatch, z_nested, passes):
+    """:func:`ssamb.closeloop.search._judge_nested`: a candidate that passed against the base is
+    judged again against the model nested in it (the parameters refitted alone with its freedom,
+    :func:`ssamb.closeloop.search.parameters_only`); without a significant held-out improvement
+    over that one (z 1.0) it is rejected with the reason, with one (z 5.0) it passes; the scores
+    are kept."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search
+
+    null = SimpleNamespace(fit=object(), overrides={"null": 1}, effects=[], pred={"name": "parameters only"})
+    seen = {}
+
+    def score(cmp, base, pred, ov, eff, n, settings):
+        seen["base"] = base
+        return {"z": z_nested, "z_group": z_nested, "group": "u:dc", "explained": 0.5, "n_groups": 12}
+    monkeypatch.setattr(search, "parameters_only", lambda *a, **k: null)
+    monkeypatch.setattr(search, "holdout_score", score)
+    monkeypatch.setattr(search, "improvement_z", lambda *a, **k: 25.0)
+    cand = _passing("resistance_drift", 0.011)
+    cand.reasons, cand.score = [], {"z": 18.8}
+    search._judge_nested(SimpleNamespace(hold="held-out part"), search.Base({}, [], {}), cand, None, 0,
+                         SimpleNamespace(alpha_accept=1e-3), None)
+    assert seen["base"].overrides is null.overrides
+    assert cand.score["nested"]["z"] == z_nested and cand.score["nested"]["parameters_only_z"] == 25.0
+    assert (not cand.reasons) == passes
+    if not passes:
+        assert "over the parameters refitted alone with the same freedom" in cand.reasons[0]
+
+
+@pytest.mark.parametrize("moved_cheaper", [True, False])
+def test_the_parameters_refitted_alone_from_two_starts(monkeypatch, moved_cheaper):
+    """:func:`ssamb.closeloop.search.parameters_only`: the base's parameters refitted alone (the
+    empty effect) from the candidate's start and from the candidate's end; of the two fits the one
+    with the lower fitting-part chi-square plus prior term is kept (the held-out part never
+    chooses)."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search
+
+    starts = []
+
+    def refit(cmp, base, models, est, seed0, step_rel, log):
+        assert [m.params for m in models] == [()] and models[0].build(np.zeros(0)) == []
+        starts.append(np.asarray(base.theta_free).copy())
+        theta = base.theta_free + 0.01
+        return SimpleNamespace(fit=SimpleNamespace(theta=theta), overrides={"start": float(base.theta_free[0])},
+                               effects=[], pred={})
+    monkeypatch.setattr(search, "fit_candidate", refit)
+    # the first fit's residual costs 10 against the second's 4 (or the reverse)
+    monkeypatch.setattr(search, "_scaled", lambda cmp, part, b, pred, ov, eff:
+                        (np.full(1, np.sqrt(10.0)), np.full(1, 2.0)) if moved_cheaper
+                        else (np.full(1, 2.0), np.full(1, np.sqrt(10.0))))
+    spec = SimpleNamespace(prior_sd=0.5)
+    base = search.Base({}, [], {}, [spec], np.array([0.0]))
+    cand = SimpleNamespace(n_free=1, fit=SimpleNamespace(theta=np.array([0.3, 5e-3])))
+    got = search.parameters_only(SimpleNamespace(fit="fitting part"), base, cand, None, 7,
+                                 SimpleNamespace(calibration_step_rel=0.05))
+    assert [s.tolist() for s in starts] == [[0.0], [0.3]]
+    assert got.overrides == {"start": 0.3 if moved_cheaper else 0.0}

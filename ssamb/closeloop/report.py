@@ -6,7 +6,8 @@ Binding keys: ``effects`` (ordered by how much each explains, most first; each w
 ``rms`` and ``fit_pct``), ``validation.fit_fraction``, ``parameters`` (calibrated nominal
 parameters the data identify, keyed by dotted config key: ``value``, ``se``, ``nominal``,
 ``relative_change``, ``identifiable``) and ``not_identifiable`` (key -> reason). Added keys:
-per-effect ``uncertainty`` and ``fit``; ``calibration`` (every calibratable parameter's
+per-effect ``uncertainty``, ``fit`` and ``rivals`` (the effects the data cannot tell from it,
+:func:`ssamb.closeloop.search.champion`); ``calibration`` (every calibratable parameter's
 estimate, tolerance and verdict, the sensitivity matrix's rank, condition and identified
 combinations, the error the calibration alone removes); ``remaining_signature`` (what is left
 when the residual is not consistent with noise), ``evidence`` (the ranking before any fitting),
@@ -108,6 +109,7 @@ def _effects(search, sigma, meas_v, hold, dev) -> list:
                                 "delta_bic": a["holdout"]["delta_bic"], "round": a["round"],
                                 "without_signature": a["without_signature"],
                                 "aliases_plausible": a.get("alias_spread", {}).get("plausible", [])},
+                        **({"rivals": list(a["rivals"])} if a.get("rivals") else {}),
                         **{k: v for k, v in e.items() if k not in ("name", "params", "uncertainty")}})
     out.sort(key=lambda e: -e["error_reduction"])
     return out
@@ -123,6 +125,11 @@ def _notes(rec, effects, cal_block, not_ident) -> list:
             notes.append(f"{e['name']}: {len(e['fit']['aliases_plausible'])} point(s) of its comb (a delay whole "
                          "controller samples away) rejected by neither part of the record: its standard error holds "
                          "their spread")
+        if e.get("rivals"):
+            names = ", ".join(f"{r['name']} (z {r['z']:.2f})" for r in e["rivals"])
+            notes.append(f"{e['name']}: the data cannot tell it apart from {names}: each passed every test alone in "
+                         f"round {e['fit']['round']} and {e['name']} does not predict the held-out part significantly "
+                         f"better (z of {e['name']} over each); {e['name']} is named first")
         if e["fit"]["without_signature"]:
             notes.append(f"{e['name']}: no signature was significant before fitting (round {e['fit']['round']}); "
                          "it was found by fitting each library effect and rests on the held-out error alone")

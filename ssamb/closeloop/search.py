@@ -19,12 +19,16 @@ held-out data, then refit everything jointly.
    (Bonferroni over the groups, :func:`improves`), at least ``min_explained`` of the excess of
    the groups clearly above the noise explained, no view made worse, the BIC drops, the effect's
    own signature is gone from the residual, its size differs from zero in its own fit, and the
-   model with it does not delevitate in most replays where the measured rotor did not. When no
+   model with it does not delevitate in most replays where the measured rotor did not; with
+   ``nested_refit`` it must also beat the parameters refitted alone with its freedom
+   (:func:`parameters_only`). When no
    single candidate passes, the leading pairs are fitted jointly (two effects can hide each
    other); when those fail too, or no signature is significant, yet the held-out residual is not
    noise, every other library effect that needs no hint from a signature is fitted and judged
    the same way (the report says so). The passing candidate that explains the largest mean share
-   of the held-out excess joins the base (the chi-square it removes breaks ties). The search
+   of the held-out excess joins the base (the chi-square it removes breaks ties); with ``rivals``
+   every other library effect is fitted too, the passing candidate no other beats on the
+   held-out part joins, and those it does not beat are named as its rivals (:func:`champion`). The search
    stops when the held-out residual is consistent with noise, no candidate passes, or
    ``max_effects`` are in.
 3. **Joint refit**: the calibrated parameters and the accepted effects' parameters together
@@ -51,7 +55,7 @@ from .calibration import Calibration, calibrate_model, identifiability, override
 from .comparison import Comparison
 from .estimate import EstimateSettings, Problem, map_fit
 from .fit import Base, Candidate, _scaled, fit_candidate, holdout_score, improvement_z, size_mask
-from .models import restart
+from .models import EffectModel, restart
 from .residual import compute_features
 from .signatures import claim_stat, evidence_all, rank
 
@@ -329,6 +333,9 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
                          log=(lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
     _candidate_alias(cmp, base, cand, settings, (lambda m: _log(progress, f"    {'+'.join(names)} " + m)))
     _judge(cand, cmp, base, ev, ft, settings, measured_contact)
+    if settings.nested_refit and cand.passed and base.free:
+        _judge_nested(cmp, base, cand, cand_est, seed0, settings,
+                      (lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
     th = dict(zip(cand.model.params, cand.fit.theta[cand.n_free:].tolist())) if cand.fit else {}
     sc = cand.score
     _log(progress, f"  {'+'.join(names)}: {th} -> held-out z {sc.get('z', float('nan')):.1f} "
@@ -336,6 +343,67 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
                    f"{100 * sc.get('explained', 0.0):.0f} %, {'passes' if cand.passed else '; '.join(cand.reasons)} "
                    f"({cand.fit.evaluations if cand.fit else 0} sims, {time.perf_counter() - t1:.1f} s)")
     return cand
+
+
+def _no_effect() -> EffectModel:
+    """The empty effect: a fit with it refits the base's free parameters alone."""
+    z = np.zeros(0)
+    return EffectModel("parameters only", (), z, z, z, z, lambda theta: [], {})
+
+
+def parameters_only(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int, settings, log=None) -> Candidate:
+    r"""The model nested in a candidate: the base's free parameters refitted with the candidate's
+    freedom -- the same problem, estimator settings and common seeds, the effect pinned at zero.
+
+    Two starts: the candidate's own (the base's free parameters) and the candidate's end with
+    the effect removed (its parameters may have moved where the data want them, not only where
+    the effect pulled them). Of the two fits the one with the lower fitting-part objective is
+    kept (its chi-square plus the prior term: the held-out part never chooses); the candidate is judged
+    against it (:func:`_judge_nested`), so that what a refit of the parameters alone explains --
+    a calibration that ended short of the rig -- is not credited to the effect.
+    """
+    import dataclasses
+
+    none = _no_effect()
+    k = cand.n_free
+    fits = [fit_candidate(cmp, base, [none], est, seed0, step_rel=settings.calibration_step_rel, log=log)]
+    if cand.fit is not None and k == len(base.free) and np.any(cand.fit.theta[:k] != base.theta_free):
+        moved = dataclasses.replace(base, theta_free=np.asarray(cand.fit.theta[:k], float).copy())
+        fits.append(fit_candidate(cmp, moved, [none], est, seed0, step_rel=settings.calibration_step_rel, log=log))
+    ok = [f for f in fits if f.fit is not None]
+    if len(ok) < 2:
+        return (ok or fits)[0]
+    a, b = ok
+    sd = np.array([sp.prior_sd for sp in base.free])
+    ra, rb = _scaled(cmp, cmp.fit, Base(a.overrides, a.effects, a.pred), b.pred, b.overrides, b.effects)
+    cost_a = float(ra @ ra + np.sum((a.fit.theta[:k] / sd) ** 2))
+    cost_b = float(rb @ rb + np.sum((b.fit.theta[:k] / sd) ** 2))
+    return b if cost_b < cost_a else a
+
+
+def _judge_nested(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int, settings, log=None) -> None:
+    """A candidate that passed against the base must also improve the held-out part
+    significantly (:func:`improves`) over the model nested in it (:func:`parameters_only`): the
+    base's parameters refitted with the same freedom, the effect pinned at zero. An effect that
+    only carries the parameters' refit -- the held-out gain of any candidate, whatever its size,
+    where the calibration ended short -- is rejected."""
+    null = parameters_only(cmp, base, cand, est, seed0, settings, log)
+    if null.fit is None:
+        return
+    nb = Base(null.overrides, list(null.effects), null.pred)
+    hs = holdout_score(cmp, nb, cand.pred, cand.overrides, list(base.effects) + cand.effects,
+                       len(cand.model.params), settings)
+    cand.score["nested"] = {"z": hs["z"], "z_group": hs["z_group"], "group": hs["group"],
+                            "explained": hs["explained"],
+                            "parameters_only_z": improvement_z(cmp, cmp.hold, base, null.pred, null.overrides,
+                                                               list(null.effects))}
+    if not improves(hs, settings):
+        cand.reasons.append(f"no significant held-out improvement over the parameters refitted alone with the same "
+                            f"freedom (z = {hs['z']:.2f}; in {hs['group']} {hs['z_group']:.2f}; the parameters' "
+                            f"refit alone: z {cand.score['nested']['parameters_only_z']:.2f} over the base)")
+    elif log is not None:
+        log(f"beats the parameters refitted alone (z {hs['z']:.1f}, {hs['group']} {hs['z_group']:.1f}; "
+            f"their refit alone z {cand.score['nested']['parameters_only_z']:.1f} over the base)")
 
 
 def _worth_refining(cand: Candidate, settings) -> bool:
@@ -395,6 +463,68 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
     return passing
 
 
+def _rival_candidates(cmp, base, ev, ft, info, settings, est, rnd, measured_contact, progress) -> list:
+    """Once a candidate passes in a round, every other library effect not yet fitted in it -- the
+    ranked ones beyond ``candidates_per_round`` and those that need no hint -- fitted and judged
+    the same way (:func:`_try`); the passing ones are returned. An effect whose signature these
+    data cannot show (an eddy current's lag of the force beside a sensor delay at 100 Hz) is
+    otherwise never set against the one that passed."""
+    taken = {e["name"] for e in base.effects}
+    tried = {c["name"] for c in info["candidates"]}
+    lib = cmp.device.effects
+    rest = [n for n in rank(ev) if n not in taken and n not in tried]
+    rest += [n for n in sorted(ev, key=lambda n: ev[n].log10_p)
+             if not lib[n].NEEDS_HINT and n not in taken and n not in tried and n not in rest]
+    out = []
+    for j, name in enumerate(rest):
+        cand = _try(cmp, base, [name], ev, cmp.record, settings, est, 10_000 * (rnd + 1) + 7000 + 100 * j, ft,
+                    measured_contact, progress)
+        info["candidates"].append({**_entry(cand, rnd, settings), "rival_check": True})
+        if cand.passed:
+            out.append(cand)
+    return out
+
+
+def champion(cmp: Comparison, base: Base, passing: list, best: Candidate, settings) -> tuple:
+    r"""The passing candidate of a round that no other passing one beats on the held-out part,
+    and its *rivals*: the passing candidates the held-out part cannot tell from it.
+
+    Starting from ``best`` (the largest share explained), a candidate :math:`c` whose held-out
+    improvement :math:`z` over the current choice (:func:`ssamb.closeloop.fit.improvement_z`, the
+    choice as the base) exceeds the acceptance level :math:`z_c` replaces it (the largest such
+    :math:`z` first), until none does. Every other passing candidate is then a rival unless the
+    choice beats it by more than :math:`z_c`: two effects that explain the held-out part alike
+    (a sensor delay and an eddy current's lag, a saturating force and a curved sensor, on 100 Hz
+    data) are both named, the choice first, and the report says the data cannot tell them
+    apart instead of counting the choice as a finding of its own.
+
+    Returns ``(choice, rivals)``, each rival ``{"name", "params", "z"}`` (:math:`z` of the choice
+    over the rival).
+    """
+    z_c = float(stats.norm.isf(settings.alpha_accept))
+
+    def z_over(a: Candidate, b: Candidate) -> float:
+        """How much better ``b`` predicts the held-out part than ``a``."""
+        ab = Base(a.overrides, list(base.effects) + a.effects, a.pred)
+        return improvement_z(cmp, cmp.hold, ab, b.pred, b.overrides, list(base.effects) + b.effects)
+    choice = best
+    for _ in range(len(passing)):
+        others = [(z_over(choice, c), i, c) for i, c in enumerate(passing) if c is not choice]
+        better = [t for t in others if t[0] > z_c]
+        if not better:
+            break
+        choice = max(better, key=lambda t: (t[0], -t[1]))[2]
+    rivals = []
+    for c in passing:
+        if c is choice or len(c.names) > 1:
+            continue
+        z = z_over(c, choice)
+        if z <= z_c and c.model.name != choice.model.name:
+            rivals.append({"name": c.model.name, "params": dict(zip(c.model.params, c.fit.theta[c.n_free:].tolist())),
+                           "z": float(z)})
+    return choice, rivals
+
+
 def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult, measured_contact: bool,
                    progress: bool) -> Base:
     rejected: dict = {}
@@ -441,6 +571,13 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
         # that another effect explains in all): the mean share, the chi-square as tie-break. A share
         # above one explains all of the excess and the rest is the noise's: it counts as one
         best = max(passing, key=lambda c: (min(c.score["explained"], 1.0), c.score["delta_chi2"]))
+        rivals = []
+        if settings.rivals:
+            passing += _rival_candidates(cmp, base, ev, ft, info, settings, est, rnd, measured_contact, progress)
+            best, rivals = champion(cmp, base, passing, best, settings)
+            if rivals:
+                _log(progress, f"round {rnd}: {best.model.name} and {', '.join(r['name'] for r in rivals)} explain the "
+                               f"held-out part alike: the data cannot tell them apart ({best.model.name} reported)")
         for sl, m in zip(best.slices(), best.models):
             th = best.fit.theta[sl]
             se = best.fit.se[sl]
@@ -448,7 +585,7 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
             out.accepted.append({"name": m.name, "model": m, "theta": th, "se": np.hypot(se, spread),
                                  "alias_sd": spread, "holdout": best.score,
                                  "evidence": ev[m.name], "round": rnd, "pred": best.pred,
-                                 "without_signature": bool(info.get("fallback"))})
+                                 "without_signature": bool(info.get("fallback")), "rivals": rivals})
         base = base.after(best)
     return base
 

@@ -83,6 +83,20 @@ class Settings:
         and a held-out improvement it hides is not seen. Not where a replay of the calibrated model
         drops the body (no model of the rig's noise). Off by default: a periodic excitation reads
         the data's noise off the data alone.
+    nested_refit : bool
+        A candidate that passes against the base must also improve the held-out part
+        significantly over the model nested in it: the base's parameters refitted with the
+        candidate's freedom, the effect pinned at zero
+        (:func:`ssamb.closeloop.search.parameters_only`). Where the calibration ends short of the
+        rig, every candidate fitted with the parameters free improves the held-out part, whatever
+        its size; the nested comparison credits the effect only with what the parameters' refit
+        alone does not explain. Off by default: a periodic excitation's calibration ends at its
+        optimum and the refit adds nothing there.
+    rivals : bool
+        Once a candidate passes in a round, fit every other library effect not yet tried in it,
+        and report the passing ones the held-out part cannot tell from the chosen one as its rivals
+        (:func:`ssamb.closeloop.search.champion`): effects that explain the data alike are both
+        named. Off by default (each round then fits its ranked candidates only).
     calibration_step_rel : float
         Largest finite-difference step of a relative parameter (a wider tolerance reaches where
         the response is no longer linear).
@@ -157,6 +171,8 @@ class Settings:
     session: tuple = ()
     calibration_restarts: int = 1
     noise_at_calibration: bool = False
+    nested_refit: bool = False
+    rivals: bool = False
     calibration_step_rel: float = 0.05
     identifiable_ratio: float = 1.0 / 3.0
     conflict_z: float = 3.0
