@@ -27,9 +27,11 @@ the recording's state at its start but with the controller's state that the rig'
 
 A draw with an effect passes when the effect is found (first in the list of effects) and its
 size is within three standard errors or 25 % of the truth; a null draw passes when no effect is
-declared. Effects the device says a recording cannot identify (their parameterisation returns
-a reason: absorbed by the calibrated parameters, or visible only across levels) are not drawn
-there and are listed with the reason. One JSON line per draw goes to ``--out`` as it ends; the
+declared. A draw whose truth is named among the rivals of the effect found first (effects the data
+cannot tell apart, :func:`ssamb.closeloop.search.champion`) fails, and is counted apart. Effects
+the device says a recording cannot identify (their parameterisation returns a reason: absorbed by
+the calibrated parameters, or visible only across levels) are not drawn there and are listed with
+the reason. One JSON line per draw goes to ``--out`` as it ends; the
 summary printed at the end: pass rates, per effect, false alarms, time per draw.
 
 Every draw is also set against its truth (:func:`against_truth`): the rig's own model (its
@@ -271,7 +273,9 @@ def _found(true: dict, rep: dict) -> list[str]:
         return [f"{true['name']} not found ({rep.get('summary', '')})"]
     e = eff[0]
     if e["name"] != true["name"]:
-        return [f"found {e['name']} first, the rig has {true['name']}"]
+        named = [r["name"] for r in e.get("rivals", [])]
+        among = f" (named among its rivals {named}: the data cannot tell them apart)" if true["name"] in named else ""
+        return [f"found {e['name']} first, the rig has {true['name']}{among}"]
     fails = []
     for k, v in true.items():
         if k == "name" or k not in e["params"]:
@@ -378,7 +382,8 @@ def run_draw(args) -> dict:
     truth = against_truth(dev, cfg, rig, true, data, meta, rep, int(rng.integers(1, 10_000)), ov)
     return {"draw": k, "effect": true, "recording": path.stem, "rig": ov, "failures": fails, "truth": truth,
             "summary": rep.get("summary", ""),
-            "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {})}
+            "found": [{"name": e["name"], "params": e["params"], "uncertainty": e.get("uncertainty", {}),
+                       "rivals": [r["name"] for r in e.get("rivals", [])]}
                       for e in rep["effects"]],
             "parameters": {key: [p["value"], p["se"], ov.get(key)] for key, p in rep["parameters"].items()},
             "refused": why, "shows": shows, "simulations": rep["timing"]["simulations"],
@@ -414,6 +419,9 @@ def summarize(res: list, drawn: list, only_rigs: bool = False) -> None:
     for half, r in (("odd (the acceptance half)", 1), ("even (the development half)", 0)):
         sel = [d for d in eff if d["draw"] % 2 == r]
         print(f"  {half} draws: {sum(not d['failures'] for d in sel)} of {len(sel)}")
+    among = [d for d in eff if d["failures"] and "named among its rivals" in d["failures"][0]]
+    print(f"  the truth named among the rivals of the effect found first (the data cannot tell them apart; not "
+          f"counted as found): {len(among)} (odd {sum(d['draw'] % 2 for d in among)})")
     judged = [d for d in eff if d.get("truth")]
     vis = [d for d in judged if d["truth"]["visible"]]
     inv = [d for d in judged if not d["truth"]["visible"]]
