@@ -875,3 +875,52 @@ def test_the_parameters_refitted_alone_from_two_starts(monkeypatch, moved_cheape
                                  SimpleNamespace(calibration_step_rel=0.05))
     assert [s.tolist() for s in starts] == [[0.0], [0.3]]
     assert got.overrides == {"start": 0.3 if moved_cheaper else 0.0}
+
+
+@pytest.mark.parametrize("delay_reason, retried", [
+    ("explains -13 % of the residual excess (< 20 %)", True),
+    ("held-out improvement not significant (z = 1.00 <= 3.09; in u_y:lines 1.00 <= 3.92)", False)])
+def test_an_effect_hidden_by_a_larger_one_is_tried_again_beside_it(monkeypatch, delay_reason, retried):
+    """:func:`ssamb.closeloop.search._effect_search`, scripted: round 0 fits every effect (no
+    signature names one); a load passes, a delay improves the held-out part significantly but
+    fails by the share of the excess it explains beside the load's misfit. Round 1, on the base
+    with the load, fits the delay again (and it passes there); a delay rejected as not
+    significant is not fitted again."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search as S
+    from ssamb.closeloop.fit import Candidate
+    from ssamb.closeloop.settings import Settings
+
+    settings = Settings()
+    ev = {n: SimpleNamespace(log10_p=0.0, hints={}, to_json=lambda: {}) for n in ("static_load", "sensor_delay")}
+    lib = {n: SimpleNamespace(NEEDS_HINT=False) for n in ev}
+    cmp = SimpleNamespace(record=None, device=SimpleNamespace(effects=lib))
+    fitted = []
+
+    class FakeBase:
+        def __init__(self, effects):
+            self.effects, self.shown, self.spare = effects, None, []
+
+        def after(self, cand):
+            return FakeBase(self.effects + [{"name": n} for n in cand.names])
+
+    def fake_try(cmp, base, names, *a, **k):
+        rnd = len(base.effects)
+        fitted.append((rnd, names[0]))
+        z = 40.0 if names[0] == "sensor_delay" and delay_reason.startswith("explains") else 1.0
+        reasons = [] if names[0] == "static_load" or rnd == 1 else [delay_reason]
+        model = SimpleNamespace(name=names[0], params=["p"])
+        fit = SimpleNamespace(theta=np.array([1.0]), se=np.array([0.1]))
+        return Candidate(tuple(names), [model], model, fit, [{"name": names[0]}], {}, {"z": z, "z_group": z,
+                         "n_groups": 1, "explained": 0.9, "delta_chi2": 1.0}, reasons)
+
+    monkeypatch.setattr(S, "_round", lambda cmp, base, settings, rnd, rejected: (
+        {"round": rnd, "ranking": [], "candidates": []}, [], None, ev))
+    monkeypatch.setattr(S, "consistency", lambda cmp, base, settings: (len(base.effects) == 2, []))
+    monkeypatch.setattr(S, "_try", fake_try)
+    monkeypatch.setattr(S, "_entry", lambda cand, rnd, settings: {"name": "+".join(cand.names)})
+    out = S.SearchResult()
+    S._effect_search(cmp, FakeBase([]), settings, None, out, False, False)
+    assert (1, "sensor_delay") in fitted if retried else (1, "sensor_delay") not in fitted
+    assert [a["name"] for a in out.accepted] == (["static_load", "sensor_delay"] if retried else ["static_load"])
