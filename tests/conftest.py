@@ -181,8 +181,8 @@ SMOKE_FIXTURES = ("smoke_workdir",)
 #: fixtures of module scope shared by several tests and costly to make: with pytest-xdist the
 #: tests that use one run on the same worker, which makes it once (the smoke workflow is shared
 #: between the workers by its folder: the tests only read it)
-SHARED_FIXTURES = ("row5", "rig_pair", "heavier_rig", "chain", "workflow", "data", "model", "plant_and_physics",
-                   "pid", "known")
+SHARED_FIXTURES = ("row1", "row2", "row3", "row4", "row5", "rig_pair", "heavier_rig", "chain", "workflow", "data",
+                   "model", "plant_and_physics", "pid", "known")
 _CONFIG = None
 #: the smoke runs this process started (it reaps them)
 _STARTED: list[subprocess.Popen] = []
@@ -286,17 +286,49 @@ def _smoke(name: str) -> Path:
     return run.result()
 
 
+def _row(tmp_path_factory, name: str, out: bool = False) -> dict:
+    """Row ``name`` of issue 23's table (tests/rowcases.py), analysed once per session:
+    ``{"report", "oracle_z", "out"}`` (``out``: with ``out=True`` the folder where the analysis is
+    written as the command line writes it, ``closeloop.json`` and the figures). The row's tests
+    judge the findings and the oracle apart; the format tests read what row 5 wrote."""
+    from rowcases import analysed, row
+
+    experiment, effects, duration_s = row(name)
+    tmp = tmp_path_factory.mktemp(name)
+    rep, z = analysed(tmp, experiment, effects, duration_s=duration_s, workers=REPLAY_WORKERS,
+                      out=tmp / "out" if out else None)
+    return {"report": rep, "oracle_z": z, "out": tmp / "out" if out else None}
+
+
+@pytest.fixture(scope="session")
+def row1(tmp_path_factory) -> dict:
+    """Row 1: an 8 N x load, the identification's current pulses (:func:`_row`)."""
+    return _row(tmp_path_factory, "row1")
+
+
+@pytest.fixture(scope="session")
+def row2(tmp_path_factory) -> dict:
+    """Row 2: a 37 us sensor delay on both axes, a multisine on y (:func:`_row`)."""
+    return _row(tmp_path_factory, "row2")
+
+
+@pytest.fixture(scope="session")
+def row3(tmp_path_factory) -> dict:
+    """Row 3: the same delay, a multisine on both axes (:func:`_row`)."""
+    return _row(tmp_path_factory, "row3")
+
+
+@pytest.fixture(scope="session")
+def row4(tmp_path_factory) -> dict:
+    """Row 4: a 15 us y sensor delay and a -4 N y load, a multisine on y (:func:`_row`)."""
+    return _row(tmp_path_factory, "row4")
+
+
 @pytest.fixture(scope="session")
 def row5(tmp_path_factory) -> dict:
-    """Row 5 of issue 23's table (tests/rowcases.py: a 15 us y sensor delay and a -4 N y load, a
-    multisine on both axes), analysed once per session and written as the command line writes
-    it: ``{"report", "oracle_z", "out"}`` (``out``: the folder with ``closeloop.json`` and the
-    figures). The row's test judges the analysis, the format tests read what it wrote."""
-    from rowcases import DELAY_AND_LOAD, analysed, multisine
-
-    tmp = tmp_path_factory.mktemp("row5")
-    rep, z = analysed(tmp, multisine("both"), DELAY_AND_LOAD, workers=REPLAY_WORKERS, out=tmp / "out")
-    return {"report": rep, "oracle_z": z, "out": tmp / "out"}
+    """Row 5: the same rig, a multisine on both axes, written as the command line writes it
+    (:func:`_row`; the format tests read it)."""
+    return _row(tmp_path_factory, "row5", out=True)
 
 
 @pytest.fixture(scope="session")

@@ -21,6 +21,14 @@ DELAY_AND_LOAD = [{"name": "sensor_delay", "axis": "y", "delay_s": 15e-6},
                   {"name": "static_load", "fx_n": 0.0, "fy_n": -4.0}]
 
 
+def row(name: str) -> tuple:
+    """Row ``name`` (``row1`` ... ``row5``) of issue 23's table: ``(experiment, effects, duration_s)``."""
+    delay37 = [{"name": "sensor_delay", "axis": "both", "delay_s": 37e-6}]
+    return {"row1": (PULSES, [{"name": "static_load", "fx_n": 8.0, "fy_n": 0.0}], 0.6),
+            "row2": (multisine("y"), delay37, None), "row3": (multisine("both"), delay37, None),
+            "row4": (multisine("y"), DELAY_AND_LOAD, None), "row5": (multisine("both"), DELAY_AND_LOAD, None)}[name]
+
+
 def multisine(axis: str) -> dict:
     """A 100 um multisine of 5 lines (5-25 Hz) over four 0.2 s periods on ``axis`` (y or both)."""
     return {"kind": "multisine", "point": "position", "axis": axis, "amplitude_m": 1.0e-4, "f_min_hz": 5.0,
