@@ -814,13 +814,13 @@ def test_the_champion_of_a_round_and_its_rivals(monkeypatch, z_table, choice, ri
         assert r["params"] == {"size": 5.2e-3} and r["z"] == z_table.get(("eddy_current", "sensor_delay"), 0.0)
 
 
-@pytest.mark.parametrize("z_nested, passes", [(1.0, False), (5.0, True)])
-def test_a_candidate_must_beat_the_parameters_refitted_alone(monkeypatch, z_nested, passes):
+@pytest.mark.parametrize("z_nested, explained, passes", [(1.0, 0.5, False), (5.0, 0.5, True), (5.0, 0.04, False)])
+def test_a_candidate_must_beat_the_parameters_refitted_alone(monkeypatch, z_nested, explained, passes):
     """:func:`ssamb.closeloop.search._judge_nested`: a candidate that passed against the base is
     judged again against the model nested in it (the parameters refitted alone with its freedom,
     :func:`ssamb.closeloop.search.parameters_only`); without a significant held-out improvement
-    over that one (z 1.0) it is rejected with the reason, with one (z 5.0) it passes; the scores
-    are kept."""
+    over that one (z 1.0), or explaining less than ``min_explained`` of the excess it leaves (4 %
+    of it at z 5.0), it is rejected with the reason; with both it passes; the scores are kept."""
     from types import SimpleNamespace
 
     from ssamb.closeloop import search
@@ -830,19 +830,22 @@ def test_a_candidate_must_beat_the_parameters_refitted_alone(monkeypatch, z_nest
 
     def score(cmp, base, pred, ov, eff, n, settings):
         seen["base"] = base
-        return {"z": z_nested, "z_group": z_nested, "group": "u:dc", "explained": 0.5, "n_groups": 12}
+        return {"z": z_nested, "z_group": z_nested, "group": "u:dc", "explained": explained, "n_groups": 12}
     monkeypatch.setattr(search, "parameters_only", lambda *a, **k: null)
     monkeypatch.setattr(search, "holdout_score", score)
     monkeypatch.setattr(search, "improvement_z", lambda *a, **k: 25.0)
     cand = _passing("resistance_drift", 0.011)
     cand.reasons, cand.score = [], {"z": 18.8}
     search._judge_nested(SimpleNamespace(hold="held-out part"), search.Base({}, [], {}), cand, None, 0,
-                         SimpleNamespace(alpha_accept=1e-3), None)
+                         SimpleNamespace(alpha_accept=1e-3, min_explained=0.2), None)
     assert seen["base"].overrides is null.overrides
     assert cand.score["nested"]["z"] == z_nested and cand.score["nested"]["parameters_only_z"] == 25.0
     assert (not cand.reasons) == passes
-    if not passes:
-        assert "over the parameters refitted alone with the same freedom" in cand.reasons[0]
+    if z_nested < 3.09:
+        assert "no significant held-out improvement over the parameters refitted alone" in cand.reasons[0]
+    elif not passes:
+        assert cand.reasons == ["explains 4 % of the residual excess the parameters refitted alone with the same "
+                                "freedom leave (< 20 %)"]
 
 
 @pytest.mark.parametrize("moved_cheaper", [True, False])

@@ -382,11 +382,12 @@ def parameters_only(cmp: Comparison, base: Base, cand: Candidate, est, seed0: in
 
 
 def _judge_nested(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int, settings, log=None) -> None:
-    """A candidate that passed against the base must also improve the held-out part
-    significantly (:func:`improves`) over the model nested in it (:func:`parameters_only`): the
-    base's parameters refitted with the same freedom, the effect pinned at zero. An effect that
-    only carries the parameters' refit -- the held-out gain of any candidate, whatever its size,
-    where the calibration ended short -- is rejected."""
+    """A candidate that passed against the base must pass the held-out tests against the model
+    nested in it too (:func:`parameters_only`: the base's parameters refitted with the same
+    freedom, the effect pinned at zero): a significant improvement (:func:`improves`) and at least
+    ``min_explained`` (per effect) of the excess that model leaves explained. An effect that only
+    carries the parameters' refit -- the held-out gain of any candidate, whatever its size, where
+    the calibration ended short -- is rejected."""
     null = parameters_only(cmp, base, cand, est, seed0, settings, log)
     if null.fit is None:
         return
@@ -397,13 +398,18 @@ def _judge_nested(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int,
                             "explained": hs["explained"],
                             "parameters_only_z": improvement_z(cmp, cmp.hold, base, null.pred, null.overrides,
                                                                list(null.effects))}
+    need = settings.min_explained * len(cand.names)
     if not improves(hs, settings):
         cand.reasons.append(f"no significant held-out improvement over the parameters refitted alone with the same "
                             f"freedom (z = {hs['z']:.2f}; in {hs['group']} {hs['z_group']:.2f}; the parameters' "
                             f"refit alone: z {cand.score['nested']['parameters_only_z']:.2f} over the base)")
+    elif hs["explained"] < need:
+        cand.reasons.append(f"explains {100 * hs['explained']:.0f} % of the residual excess the parameters refitted "
+                            f"alone with the same freedom leave (< {100 * need:.0f} %)")
     elif log is not None:
-        log(f"beats the parameters refitted alone (z {hs['z']:.1f}, {hs['group']} {hs['z_group']:.1f}; "
-            f"their refit alone z {cand.score['nested']['parameters_only_z']:.1f} over the base)")
+        log(f"beats the parameters refitted alone (z {hs['z']:.1f}, {hs['group']} {hs['z_group']:.1f}; explained "
+            f"{100 * hs['explained']:.0f} %; their refit alone z {cand.score['nested']['parameters_only_z']:.1f} over "
+            f"the base)")
 
 
 def _worth_refining(cand: Candidate, settings) -> bool:
