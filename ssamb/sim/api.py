@@ -106,6 +106,12 @@ class SimOptions:
         False calibrates DCM self-sensing with noise-free converter samples (quantisation
         stays): a calibration without a random error of its own, for a replay whose
         calibration error is a parameter (``selfsensing.calibration_*_error``).
+    noise_stream : int
+        The converter noise's stream, a key of its seed sequence besides the seed: 0 for an
+        experiment; a model's replays of measured data draw from a stream of their own
+        (:data:`ssamb.sim.device.REPLAY_STREAM`), so that no replay reproduces the noise of an
+        experiment simulated with the same seed (a simulated rig's data are then not one of
+        the model's replays, as a real rig's never are).
     """
 
     duration_s: float | None = None
@@ -124,6 +130,7 @@ class SimOptions:
     effects_base_dir: str | Path | None = None
     settle_s: float | None = None
     calibration_noise: bool = True
+    noise_stream: int = 0
 
 
 # ------------------------------------------------------------------------------------------
@@ -206,7 +213,8 @@ def _standard_noise(seed_seq: np.random.SeedSequence | int, n: int, n_per: int) 
 
 def _seed_sequence(cfg: Mapping, seed: int, exc: Mapping, key: int = 0) -> np.random.SeedSequence:
     """Converter noise seed: the base seed, ``converters.seed_offset`` and the excitation's own
-    offset (so that every experiment has its own noise), plus ``key`` (calibration runs)."""
+    offset (so that every experiment has its own noise), plus ``key`` (the noise stream:
+    :attr:`SimOptions.noise_stream`; calibration runs ``1000 + i``)."""
     offsets = [int(exc.get("seed_offset", 0)), int(exc.get("seed", 0))]
     return np.random.SeedSequence([int(seed), int(cfg["converters"]["seed_offset"]), *offsets, key])
 
@@ -555,7 +563,8 @@ def simulate(cfg: Mapping, experiment: str | None = None, options: SimOptions | 
     drive, sig, run, ov = _drive(cfg, par, exp, opts, seed, experiment)
     packed = _packed(par, ov, opts)
     qtab = network_tables(par)
-    noise, npi = converter_noise(par, drive.shape[1], _seed_sequence(cfg, seed, exp["excitation"]), opts.noise)
+    noise, npi = converter_noise(par, drive.shape[1], _seed_sequence(cfg, seed, exp["excitation"], opts.noise_stream),
+                                 opts.noise)
     # equilibrium for the static part of the load at t = 0 (the pre-roll settles the rest)
     eq = equilibrium(par, packed, qtab, f_x_n=float(drive[4, 0]), f_y_n=float(drive[5, 0]))
     calib = None
