@@ -927,3 +927,33 @@ def test_an_effect_hidden_by_a_larger_one_is_tried_again_beside_it(monkeypatch, 
     S._effect_search(cmp, FakeBase([]), settings, None, out, False, False)
     assert (1, "sensor_delay") in fitted if retried else (1, "sensor_delay") not in fitted
     assert [a["name"] for a in out.accepted] == (["static_load", "sensor_delay"] if retried else ["static_load"])
+
+
+def test_the_held_out_z_counts_the_predictions_own_noise():
+    """:func:`ssamb.closeloop.fit.improvement_z` between two equally good models whose replays are
+    independent (a chaotic loop: each replay's noise twice the data's), both misfitting (the
+    misfit four times the data's noise variance): over 300 data sets its standard deviation is at
+    most about one (the jackknife over the paired replays), where the data's noise alone in the
+    denominator makes it about two."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.fit import Base, improvement_z
+
+    rng = np.random.default_rng(7)
+    n, m, sigma = 200, 8, 2.0
+    misfit = 2.0 * rng.standard_normal(n)
+    z_new, z_old = [], []
+    for _ in range(300):
+        e = rng.standard_normal(n)
+        runs = {k: [{"v": e + misfit + sigma * rng.standard_normal(n), "delevitated": False} for _ in range(m)]
+                for k in (0, 1)}
+        cmp = SimpleNamespace(seeds=tuple(range(m)), device=SimpleNamespace(channels=("v",)),
+                              replay=SimpleNamespace(runs=lambda eff, nn, ov, seeds: runs[ov["k"]]),
+                              residual=lambda part, pred: pred["v"], noise_factors=lambda part, ov, eff: np.ones(n))
+        pred = {k: {"v": np.mean([r["v"] for r in runs[k]], axis=0)} for k in (0, 1)}
+        z_new.append(improvement_z(cmp, None, Base({"k": 0}, [], pred[0]), pred[1], {"k": 1}, []))
+        r0, r1 = pred[0]["v"], pred[1]["v"]
+        z_old.append((r0 @ r0 - r1 @ r1) / (2 * np.linalg.norm(r1 - r0)))
+    assert 0.6 < np.std(z_new) < 1.15, (np.std(z_new), np.std(z_old))
+    assert abs(np.mean(z_new)) < 0.25
+    assert np.std(z_old) > 1.5, (np.std(z_new), np.std(z_old))

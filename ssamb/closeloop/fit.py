@@ -11,11 +11,16 @@ reason, never a crash.
 noise its replicates show: :meth:`ssamb.closeloop.comparison.Comparison.noise_factors`) and
 :math:`\delta = r_1 - r_0`,
 
-.. math:: z = \frac{\|r_0\|^2 - \|r_1\|^2}{2\|\delta\|}
+.. math:: z = \frac{\|r_0\|^2 - \|r_1\|^2}{\sqrt{4\|\delta\|^2 + V_J}}
 
 is at most standard normal when the base is right (its mean is :math:`-\|\delta\|/2` for a
 noiseless prediction and about 0 when :math:`\delta` is the predictions' own noise), and large
-when the candidate explains what the base missed: a one-sided test. The same statistic per group
+when the candidate explains what the base missed: a one-sided test. :math:`4\|\delta\|^2` is
+the variance the data's noise gives the numerator; :math:`V_J`, the jackknife variance of the
+numerator over the predictions' paired replays (:func:`replay_jackknife`), the variance their
+own noise gives it -- large where the two models' replays part (the self-sensed loop is
+chaotic) while both misfit: without it one model replayed with two sets of seeds differs by
+several "standard deviations". The same statistic per group
 of entries (a view's DC, windows, bands, lines: :meth:`~ssamb.closeloop.comparison.Comparison.named_groups`),
 ``z_group`` the largest, tested at ``alpha_accept`` over the groups (Bonferroni): the
 predictions' noise in all :math:`N` entries can hide an improvement in a few (a load in the DC of
@@ -113,13 +118,57 @@ class Candidate:
         return out
 
 
+def _scale(cmp: Comparison, part: Part, base: Base, overrides: dict, effects: list) -> np.ndarray:
+    """Per entry, one over the square root of the larger of the two models' noise factors."""
+    f = np.maximum(cmp.noise_factors(part, base.overrides, base.effects),
+                   cmp.noise_factors(part, overrides, effects))
+    return 1.0 / np.sqrt(f)
+
+
 def _scaled(cmp: Comparison, part: Part, base: Base, pred: dict, overrides: dict,
             effects: list) -> tuple[np.ndarray, np.ndarray]:
     """Whitened residuals of base and candidate, rescaled by the larger of their noise factors."""
-    f = np.maximum(cmp.noise_factors(part, base.overrides, base.effects),
-                   cmp.noise_factors(part, overrides, effects))
-    s = 1.0 / np.sqrt(f)
+    s = _scale(cmp, part, base, overrides, effects)
     return cmp.residual(part, base.pred) * s, cmp.residual(part, pred) * s
+
+
+def replay_jackknife(cmp: Comparison, part: Part, base: Base, overrides: dict, effects: list,
+                     scale: np.ndarray) -> tuple | None:
+    r"""The scaled residuals of both models' leave-one-replay-out predictions, ``(A, B)`` of shape
+    ``(m, N)`` (row :math:`j`: the mean of the replays without seed :math:`j`, the same seed left
+    out of both), or None with fewer than three paired replays.
+
+    They give the prediction noise's share of the variance of a difference of two models'
+    costs (:func:`jackknife_variance`): where the replays of the two models part (a chaotic loop),
+    :math:`\lVert r_0\rVert^2 - \lVert r_1\rVert^2` moves with the replays' seeds as much as with
+    the data, which the data's unit noise alone does not say."""
+    runs0 = cmp.replay.runs(base.effects, None, base.overrides, cmp.seeds)
+    runs1 = cmp.replay.runs(effects, None, overrides, cmp.seeds)
+    m = len(runs0)
+    if m < 3 or len(runs1) != m:
+        return None
+    chans = cmp.device.channels
+
+    def without(runs, j):
+        keep = [r for i, r in enumerate(runs) if i != j]
+        out = {c: np.mean([r[c] for r in keep], axis=0) for c in chans}
+        out["delevitated"] = any(bool(r["delevitated"]) for r in keep)
+        out["runs"] = [{c: r[c] for c in chans} for r in keep]
+        return out
+    return (np.array([cmp.residual(part, without(runs0, j)) * scale for j in range(m)]),
+            np.array([cmp.residual(part, without(runs1, j)) * scale for j in range(m)]))
+
+
+def jackknife_variance(jk: tuple | None, idx=None) -> float:
+    r"""The delete-one jackknife variance of :math:`D = \lVert r_0\rVert^2 - \lVert r_1\rVert^2` over
+    the paired replays (:func:`replay_jackknife`; entries ``idx``, default all):
+    :math:`\frac{m-1}{m}\sum_j (D_{(j)} - \bar D)^2`; 0 without a jackknife."""
+    if jk is None:
+        return 0.0
+    a, b = jk if idx is None else (jk[0][:, idx], jk[1][:, idx])
+    d = np.sum(a * a, axis=1) - np.sum(b * b, axis=1)
+    m = len(d)
+    return float((m - 1) / m * np.sum((d - d.mean()) ** 2))
 
 
 def chi2_views(cmp: Comparison, part: Part, r: np.ndarray) -> dict:
@@ -130,24 +179,36 @@ def chi2_views(cmp: Comparison, part: Part, r: np.ndarray) -> dict:
 
 
 def improvement_z(cmp: Comparison, part: Part, base: Base, pred: dict, overrides: dict, effects: list,
-                  scaled: tuple | None = None) -> float:
+                  scaled: tuple | None = None, jk: tuple | None = None) -> float:
     r"""How much better a model (``overrides``, ``effects``, its prediction ``pred``) fits ``part``
-    than ``base``: :math:`z = (r_0^T r_0 - r_1^T r_1) / (2\lVert r_1 - r_0\rVert)` of their whitened
-    residuals, the improvement in standard deviations of its noise (unit-variance data noise
-    along the difference of the two predictions). ``scaled``: the residuals, when computed."""
-    r0, r1 = scaled if scaled is not None else _scaled(cmp, part, base, pred, overrides, effects)
-    nd = float(np.linalg.norm(r1 - r0))
-    return float(r0 @ r0 - r1 @ r1) / (2 * nd) if nd > 0 else 0.0
+    than ``base``: with :math:`D = r_0^T r_0 - r_1^T r_1` of their whitened residuals,
+
+    .. math:: z = D / \sqrt{4\lVert r_1 - r_0\rVert^2 + V_J},
+
+    the improvement in standard deviations of its noise: the data's unit-variance noise along
+    the difference of the two predictions, and :math:`V_J` the predictions' own, the jackknife
+    variance of :math:`D` over their paired replays (:func:`jackknife_variance`). ``scaled``: the
+    residuals, when computed, with ``jk`` their jackknife (:func:`replay_jackknife`); computed here
+    otherwise."""
+    if scaled is None:
+        s = _scale(cmp, part, base, overrides, effects)
+        scaled = cmp.residual(part, base.pred) * s, cmp.residual(part, pred) * s
+        jk = replay_jackknife(cmp, part, base, overrides, effects, s)
+    r0, r1 = scaled
+    v = 4 * float((r1 - r0) @ (r1 - r0)) + jackknife_variance(jk)
+    return float(r0 @ r0 - r1 @ r1) / math.sqrt(v) if v > 0 else 0.0
 
 
 def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effects: list, n_params: int,
                   settings) -> dict:
     """Held-out comparison of a candidate (``overrides``, ``effects``, its prediction ``pred``)
     with the base model (module docstring)."""
-    r0, r1 = _scaled(cmp, cmp.hold, base, pred, overrides, effects)
+    s = _scale(cmp, cmp.hold, base, overrides, effects)
+    r0, r1 = cmp.residual(cmp.hold, base.pred) * s, cmp.residual(cmp.hold, pred) * s
+    jk = replay_jackknife(cmp, cmp.hold, base, overrides, effects, s)
     d = r1 - r0
     dsse = float(r0 @ r0 - r1 @ r1)
-    z = improvement_z(cmp, cmp.hold, base, pred, overrides, effects, (r0, r1))
+    z = improvement_z(cmp, cmp.hold, base, pred, overrides, effects, (r0, r1), jk)
     c0, c1 = chi2_views(cmp, cmp.hold, r0), chi2_views(cmp, cmp.hold, r1)
     per_view, fracs, worse = {}, [], []
     for v in c0:
@@ -164,8 +225,8 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
     zg, per_group = {}, {}
     for name, g in groups.items():
         x0, x1, n = float(r0[g] @ r0[g]), float(r1[g] @ r1[g]), len(g)
-        ndg = float(np.linalg.norm(d[g]))
-        zg[name] = (x0 - x1) / (2 * ndg) if ndg > 0 else 0.0
+        vg = 4 * float(d[g] @ d[g]) + jackknife_variance(jk, g)
+        zg[name] = (x0 - x1) / math.sqrt(vg) if vg > 0 else 0.0
         per_group[name] = {"chi2_before": x0, "chi2_after": x1, "n": n, "z": zg[name]}
         if x0 > settings.above_noise * n or stats.chi2.sf(x0, n) < settings.alpha_noise / len(groups):
             fracs.append((x0 - x1) / (x0 - n))

@@ -276,7 +276,7 @@ def _holdout_z(dev, name: str, arrays, meta, cfg, settings, overrides: dict, wit
     two parts of one held-out recording (:func:`ssamb.closeloop.fit.holdout_score`'s form)."""
     from .comparison import Comparison
     from .data import make_split
-    from .fit import Base, _scaled
+    from .fit import Base, improvement_z
     from .replay import Replayer
 
     rec = dev.record(arrays, meta, cfg, name)
@@ -289,9 +289,7 @@ def _holdout_z(dev, name: str, arrays, meta, cfg, settings, overrides: dict, wit
         pred = cmp.prediction(overrides, with_eff)
         out = []
         for part in (cmp.fit, cmp.hold):
-            r0, r1 = _scaled(cmp, part, base, pred, overrides, with_eff)
-            nd = float(np.linalg.norm(r1 - r0))
-            out.append(float(r0 @ r0 - r1 @ r1) / (2 * nd) if nd > 0 else 0.0)
+            out.append(improvement_z(cmp, part, base, pred, overrides, with_eff))
         return out
     finally:
         replay.close()
