@@ -300,35 +300,21 @@ def _row(tmp_path_factory, name: str, out: bool = False) -> dict:
     return {"report": rep, "oracle_z": z, "out": tmp / "out" if out else None}
 
 
-@pytest.fixture(scope="session")
-def row1(tmp_path_factory) -> dict:
-    """Row 1: an 8 N x load, the identification's current pulses (:func:`_row`)."""
-    return _row(tmp_path_factory, "row1")
+def _row_fixture(name: str, doc: str, out: bool = False):
+    """A session fixture ``name`` (pytest finds it by that name) analysing that row (:func:`_row`)."""
+    @pytest.fixture(scope="session", name=name)
+    def fixture(tmp_path_factory) -> dict:
+        return _row(tmp_path_factory, name, out)
+    fixture.__doc__ = doc
+    return fixture
 
 
-@pytest.fixture(scope="session")
-def row2(tmp_path_factory) -> dict:
-    """Row 2: a 37 us sensor delay on both axes, a multisine on y (:func:`_row`)."""
-    return _row(tmp_path_factory, "row2")
-
-
-@pytest.fixture(scope="session")
-def row3(tmp_path_factory) -> dict:
-    """Row 3: the same delay, a multisine on both axes (:func:`_row`)."""
-    return _row(tmp_path_factory, "row3")
-
-
-@pytest.fixture(scope="session")
-def row4(tmp_path_factory) -> dict:
-    """Row 4: a 15 us y sensor delay and a -4 N y load, a multisine on y (:func:`_row`)."""
-    return _row(tmp_path_factory, "row4")
-
-
-@pytest.fixture(scope="session")
-def row5(tmp_path_factory) -> dict:
-    """Row 5: the same rig, a multisine on both axes, written as the command line writes it
-    (:func:`_row`; the format tests read it)."""
-    return _row(tmp_path_factory, "row5", out=True)
+row1 = _row_fixture("row1", "Row 1: an 8 N x load, the identification's current pulses.")
+row2 = _row_fixture("row2", "Row 2: a 37 us sensor delay on both axes, a multisine on y.")
+row3 = _row_fixture("row3", "Row 3: the same delay, a multisine on both axes.")
+row4 = _row_fixture("row4", "Row 4: a 15 us y sensor delay and a -4 N y load, a multisine on y.")
+row5 = _row_fixture("row5", "Row 5: the same rig, a multisine on both axes, written as the command line writes it "
+                    "(the format tests read it).", out=True)
 
 
 @pytest.fixture(scope="session")
