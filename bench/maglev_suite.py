@@ -469,6 +469,20 @@ def summarize(res: list, drawn: list, only_rigs: bool = False) -> None:
                       f"{k} {c['within_3']:.2f} of {c['n']}" for k, c in cov.items()))
 
 
+def _override_config(cls, items: list) -> None:
+    """Every default configuration of the device class ``cls`` with the ``KEY=VALUE`` overrides
+    ``items`` (YAML values) applied: the analyses and the rigs of every draw (the worker processes
+    are forked after this)."""
+    import yaml
+
+    from ssamb.config import apply_overrides
+
+    ov = {k: yaml.safe_load(v) for k, v in (it.split("=", 1) for it in items)}
+    orig = cls.default_config
+    cls.default_config = lambda self: apply_overrides(orig(self), ov)
+    print(f"configuration overrides: {ov}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--draws", type=int, default=24, help="draws with an effect")
@@ -490,6 +504,9 @@ def main() -> None:
                          "the state its own log gives (the suite before Maglev1D.rig_log)")
     ap.add_argument("--null-first", action="store_true",
                     help="run the noise-only draws before the draws with an effect (the same draws)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a key of the device's configuration in every analysis and rig (YAML value; "
+                         "e.g. closeloop.rivals=false), repeatable")
     ap.add_argument("--summary", metavar="JSONL", help="print the figures of a finished run's --out file, run nothing")
     ap.add_argument("--only-rigs", action="store_true",
                     help="draw the rigs and their data, count the refused draws, analyse nothing")
@@ -498,6 +515,8 @@ def main() -> None:
     from ssamb.device import get_device
 
     dev = get_device("maglev1d")
+    if a.set:
+        _override_config(type(dev), a.set)
     cfg = dev.default_config()
     settings = settings_from_config(cfg, dev)
     names, unidentifiable = drawable(dev, cfg, settings)
