@@ -542,7 +542,7 @@ def _retry(name: str, rejected: dict, hidden: set) -> bool:
     only by what the effect accepted since can change (``hidden``, :func:`_worth_refining`). A
     smaller effect beside a larger one is judged by the share of the excess it explains; beside
     the larger effect's misfit that share can be small or negative though the held-out part
-    needs it (a 15 us sensor delay beside a 4 N static load: held-out z 40, explained -13 %)."""
+    needs it (a short sensor delay beside a static load: the validation page)."""
     n = rejected.get(name, 0)
     return n == 0 or (n == 1 and name in hidden)
 
