@@ -314,6 +314,7 @@ def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, sho
     state the drawn log gives (:meth:`Maglev1D.rig_log`); else every stretch from the recording's state."""
     from ssamb.device import get_device
     from ssamb.io import DataError
+    from ssamb.maglev1d.device import RIG_STREAM
 
     dev = get_device("maglev1d")
     cfg = dev.default_config()
@@ -331,7 +332,8 @@ def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, sho
         # the rig's data round (the model's replays add the rounding errors: ssamb.maglev1d.physics)
         as_rig = {**rig, "replay": {**rig["replay"], "additive_quantisers": 0}}
         eff, seed_k = [true] if true else [], int(rng.integers(1, 10_000))
-        out = dev.rig_log(as_rig, rec, eff, seed_k) if consistent else dev.replay(as_rig, rec, eff, rec.n, seed_k)
+        out = (dev.rig_log(as_rig, rec, eff, seed_k) if consistent
+               else dev.replay(as_rig, rec, eff, rec.n, seed_k, RIG_STREAM))
         data = {**arrays, **{c: out.channels[c] for c in dev.channels}}
         if out.contact:
             why.update(["its data touch a stop"])

@@ -15,7 +15,8 @@ local quadratic fit, the measured current, and the controller's exact internal s
 controller is run over the whole log, :mod:`.controller`; it reproduces the logged command, so
 its integrators are known). Outside the stretches the replay returns the record's own samples.
 The reference ``yd`` drives the replay. A replay is a realisation of the noise (:mod:`.physics`:
-sensor noise before the ADCs, a random force), drawn from ``seed``; ``seed=None`` replays without
+sensor noise before the ADCs, a random force), drawn from ``seed`` in the replays' own noise stream
+(:data:`REPLAY_STREAM`: a simulated rig's log draws from another); ``seed=None`` replays without
 noise. It is deterministic given (config, effects, seed), and the device object pickles.
 """
 from __future__ import annotations
@@ -52,18 +53,27 @@ def one_level_family(a_m: float, k_h: float, gain: float, new_gain: float, level
     return a2, k_h * a_m / a2
 
 
-def _draws(seed: int | None, n: int, additive: bool) -> tuple:
-    """A replay's random draws: ``(3, n)`` standard normal (position, current, force noise) and,
-    with additive quantisers, ``(3, n)`` uniform on :math:`[-1/2, 1/2)` (the position and current
-    ADCs' and the PWM's rounding errors) from a stream of their own (a replay's first samples
-    do not depend on its length); None for ``seed=None`` (no noise; the rounding errors at their
-    mean)."""
+#: the noise streams (keys of the seed sequence besides the seed): a rig's own log
+#: (:meth:`Maglev1D.simulate_log`, :meth:`Maglev1D.rig_log`) draws from ``RIG_STREAM``, the model's
+#: replays of a record from ``REPLAY_STREAM``; a replay with a simulated rig's seed would otherwise
+#: repeat the rig's noise sample for sample, and a model near the rig's truth would be credited with
+#: the data's own noise (a real rig's data are never one of the model's replays)
+RIG_STREAM, REPLAY_STREAM = 0, 0x5E9
+
+
+def _draws(seed: int | None, n: int, additive: bool, stream: int = REPLAY_STREAM) -> tuple:
+    """A replay's random draws from the noise stream ``stream``: ``(3, n)`` standard normal
+    (position, current, force noise) and, with additive quantisers, ``(3, n)`` uniform on
+    :math:`[-1/2, 1/2)` (the position and current ADCs' and the PWM's rounding errors) from a
+    stream of their own (a replay's first samples do not depend on its length); None for
+    ``seed=None`` (no noise; the rounding errors at their mean)."""
     if seed is None:
         return None, None
-    noise = np.ascontiguousarray(np.random.default_rng(seed).standard_normal((n, 3)).T)
+    key = [int(seed)] if stream == RIG_STREAM else [int(seed), int(stream)]
+    noise = np.ascontiguousarray(np.random.default_rng(key).standard_normal((n, 3)).T)
     if not additive:
         return noise, None
-    return noise, np.ascontiguousarray(np.random.default_rng([seed, 1]).random((n, 3)).T - 0.5)
+    return noise, np.ascontiguousarray(np.random.default_rng([*key, 1]).random((n, 3)).T - 0.5)
 
 
 def _chk_face(record: Record, cfg: Mapping) -> dict:
@@ -468,14 +478,17 @@ class Maglev1D(Device):
             out[j] = [y0, v0, i0, states[a, 0], states[a, 1], states[a, 2], u[a - 1] if a > 0 else 0.0]
         return out
 
-    def replay(self, cfg: Mapping, record: Record, effects: list, n: int, seed: int | None) -> Replay:
-        """The model's ``y, i, u`` over the first ``n`` samples (module docstring)."""
+    def replay(self, cfg: Mapping, record: Record, effects: list, n: int, seed: int | None,
+               stream: int = REPLAY_STREAM) -> Replay:
+        """The model's ``y, i, u`` over the first ``n`` samples (module docstring); ``stream``:
+        the noise stream (:data:`REPLAY_STREAM` for the model's replays, :data:`RIG_STREAM` for a
+        simulated rig's own log)."""
         n = int(min(n, record.n)) if n is not None else record.n
         kn = self.knobs(cfg, effects)
         p = _phys.knobs_of(cfg, kn)
         segs = [(a, min(b, n)) for a, b in record.usable if a < n]
         init = self.initial_states(record, cfg, kn, segs)
-        noise, dither = _draws(seed, n, p[_phys.knob_index("additive_quantisers")] > 0)
+        noise, dither = _draws(seed, n, p[_phys.knob_index("additive_quantisers")] > 0, stream)
         out = _phys.simulate(p, _ctl.gains_of(cfg), record.inputs["yd"][:n], segs, init, noise,
                              t0_s=record.meta.get("t0_s", 0.0), dither=dither)
         ch = {}
@@ -504,7 +517,7 @@ class Maglev1D(Device):
         y0, i0, u0 = _phys.equilibrium(p, float(yd[0]))
         init = np.array([[y0, 0.0, i0, 0.0, -(i0 + kn["current_offset_a"]), u0, u0]])
         n = len(yd)
-        noise = None if seed is None else np.ascontiguousarray(np.random.default_rng(seed).standard_normal((n, 3)).T)
+        noise, _ = _draws(seed, n, False, RIG_STREAM)
         out = _phys.simulate(p, _ctl.gains_of(cfg), yd, [(0, n)], init, noise)
         return {"t": np.arange(n) * float(cfg["controller"]["ts_s"]), "y": out["y"], "i": out["i"], "u": out["u"],
                 "yd": yd.copy()}
@@ -522,7 +535,8 @@ class Maglev1D(Device):
         from the earlier stretches *as this rig ran them*, not as the recording's rig did (started
         from the recording's state, a later stretch of the rig's log begins with a transient that its
         own model, replayed from that log, does not reproduce). The noise of a sample is the same in
-        every stretch's replay (one ``seed``, the record's length).
+        every stretch's replay (one ``seed``, the record's length), drawn from the rig's noise stream
+        (:data:`RIG_STREAM`), never the model's replays'.
         """
         import dataclasses
 
@@ -534,7 +548,7 @@ class Maglev1D(Device):
                                  _ctl.gains_of(cfg))
             one = dataclasses.replace(record, channels={c: ch[c].copy() for c in self.channels}, usable=((a, b),),
                                       meta={**record.meta, "controller_states": states})
-            out = self.replay(cfg, one, effects or [], record.n, seed)
+            out = self.replay(cfg, one, effects or [], record.n, seed, RIG_STREAM)
             for c in self.channels:
                 ch[c][a:b] = out.channels[c][a:b]
             contact = contact or bool(out.contact)
