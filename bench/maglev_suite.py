@@ -17,9 +17,16 @@ when its replay touches a stop or never levitates, when its data levitate on oth
 the recording's ball or its own model, replayed on the draw's record, drops the ball
 (:func:`_alike`), or when its data do not show its effect (:func:`effect_shows`: the engine's own
 held-out test of the rig with the effect over the same rig without it); the reasons are counted
-(``refused``). The rig gets one library effect with a size drawn from its range (:data:`SIZES`),
-among the effects the device can identify on that recording, or none in the null draws. The
-rig's data are a replay of that rig driven by the recording's reference, each levitated stretch from
+(``refused``) and printed with the draw. A rig is drawn again until one passes, up to
+``--attempts`` rigs (:data:`ATTEMPTS`): the rig is drawn from the prior *conditioned* on what the
+recording shows of the real rig (it levitated that experiment), a condition decided from the rig
+and its own data before any analysis, so a redraw never looks at the engine's result. A cap reached
+leaves the draw without data, reported as such; with a small cap, draws whose recording and effect
+levitate rarely (an actuation delay or an eddy current on multiescalon's steps near the magnet,
+where the loop has the least margin) were dropped as a group, not at random. The rig gets one
+library effect with a size drawn from its range (:data:`SIZES`), among the effects the device can
+identify on that recording, or none in the null draws. The rig's data are a replay of that rig
+driven by the recording's reference, each levitated stretch from
 the recording's state at its start but with the controller's state that the rig's own log gives there
 (:meth:`Maglev1D.rig_log`), with a seed of its own and its converters rounding as a rig's do; the analysis
 (:func:`ssamb.closeloop.analyse`) sees only the data and the published-parameter model.
@@ -81,6 +88,10 @@ SIZES = {
     "sensor_nonlinearity": ("curvature_per_m", 10.0, 28.0, True),
 }
 
+
+#: the rigs drawn for one draw at most before it is left without data (module docstring): far
+#: above the redraws the rarest pairs of recording and effect need (docs/validation.md)
+ATTEMPTS = 1000
 
 #: replays averaged into a prediction, the level of the truth-against-final-model test, and its
 #: blocks (s): several periods of the loop's 2-7 Hz modes, at least 5 in a held-out part of 1 s
@@ -307,10 +318,11 @@ def drawable(dev, cfg, settings) -> tuple[dict, dict]:
     return names, unidentifiable
 
 
-def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, shown=True, consistent=True) -> dict:
+def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, shown=True, consistent=True,
+              attempts=ATTEMPTS) -> dict:
     """Draw ``k``'s recording, effect, rig and data (module docstring): a dict with ``path``,
     ``true``, ``ov``, ``rig``, ``data``, ``meta``, ``refused`` and ``shows``; ``data`` is None when
-    no rig in 20 levitates (``failure`` says why). ``consistent``: each stretch replayed from the
+    no rig in ``attempts`` levitates (``failure`` says why). ``consistent``: each stretch replayed from the
     state the drawn log gives (:meth:`Maglev1D.rig_log`); else every stretch from the recording's state."""
     from ssamb.device import get_device
     from ssamb.io import DataError
@@ -325,7 +337,7 @@ def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, sho
     arrays, meta = dev.load(path)
     rec = dev.record(arrays, meta, cfg, path.name)
     why, shows = Counter(), None
-    for attempt in range(20):            # a rig whose ball never levitates makes no data: draw again
+    for attempt in range(attempts):      # a rig whose ball never levitates makes no data: draw again
         if attempt and true and balance:  # the effect's size is part of the rig: drawn again with it
             true = _effect(true["name"], rng)
         ov, rig = _rig_config(dev, cfg, center, rng, rec if balance else None, true, spread, why)
@@ -354,19 +366,19 @@ def make_draw(k, with_effect, seed, center, names, spread=1.0, balance=True, sho
     else:
         small = why.get("its effect does not show in its data", 0) > 0
         return {"path": path, "true": true, "refused": dict(why), "data": None,
-                "failure": "no rig that levitates" + (" and shows its effect" if small else "") + " in 20 draws"}
+                "failure": f"no rig that levitates{' and shows its effect' if small else ''} in {attempts} draws"}
     return {"path": path, "true": true, "ov": ov, "rig": rig, "data": data, "meta": meta, "refused": dict(why),
             "shows": shows, "rng": rng}
 
 
 def run_draw(args) -> dict:
-    k, with_effect, seed, center, names, spread, balance, only_rigs, shown, consistent = args
+    k, with_effect, seed, center, names, spread, balance, only_rigs, shown, consistent, attempts = args
     from ssamb.closeloop import analyse
     from ssamb.device import get_device
 
     dev = get_device("maglev1d")
     cfg = dev.default_config()
-    dr = make_draw(k, with_effect, seed, center, names, spread, balance, shown, consistent)
+    dr = make_draw(k, with_effect, seed, center, names, spread, balance, shown, consistent, attempts)
     path, true, why = dr["path"], dr["true"], dr["refused"]
     if dr["data"] is None:
         return {"draw": k, "effect": true, "recording": path.stem, "refused": why, "failures": [dr["failure"]]}
@@ -410,8 +422,10 @@ def summarize(res: list, drawn: list, only_rigs: bool = False) -> None:
     """Print the suite's figures for the draws ``res`` (module docstring)."""
     nodata = [d for d in res if d["failures"] and d["failures"][0].startswith("no rig that levitates")]
     refused = sum((Counter(d.get("refused", {})) for d in res), Counter())
+    per = [sum((d.get("refused") or {}).values()) for d in res]
     print(f"\ndraws without data (no rig within the spread levitates on the drawn recording): {len(nodata)} of "
-          f"{len(res)}; rigs refused before each draw's rig: {sum(refused.values())} ({dict(refused)})")
+          f"{len(res)}; rigs refused before each draw's rig: {sum(refused.values())} ({dict(refused)}); per draw "
+          f"median {np.median(per) if per else 0:.0f}, most {max(per, default=0)}")
     if only_rigs:
         return
     eff = [d for d in res if d["effect"]]
@@ -510,6 +524,8 @@ def main() -> None:
                     help="override a key of the device's configuration in every analysis and rig (YAML value; "
                          "e.g. closeloop.rivals=false), repeatable")
     ap.add_argument("--summary", metavar="JSONL", help="print the figures of a finished run's --out file, run nothing")
+    ap.add_argument("--attempts", type=int, default=ATTEMPTS,
+                    help="rigs drawn for one draw at most before it is left without data")
     ap.add_argument("--only-rigs", action="store_true",
                     help="draw the rigs and their data, count the refused draws, analyse nothing")
     a = ap.parse_args()
@@ -532,7 +548,7 @@ def main() -> None:
         recs = sorted(why)
         where = "on every recording" if len(recs) == len(RECORDINGS) else f"on {', '.join(recs)}"
         print(f"not drawn {where} ({n}): {next(iter(why.values()))}", flush=True)
-    opts = (a.spread, not a.unbalanced, a.only_rigs, not a.any_size, not a.recording_states)
+    opts = (a.spread, not a.unbalanced, a.only_rigs, not a.any_size, not a.recording_states, a.attempts)
     jobs = [(k, True, a.seed, center, names, *opts) for k in range(a.draws)]
     jobs += [(a.draws + k, False, a.seed, center, names, *opts) for k in range(a.null)]
     if a.null_first:
@@ -552,8 +568,10 @@ def main() -> None:
                   f"; engine's held-out z of the truth over the final model {tr['engine']['z']:.1f}"
                   f" (group {tr['engine']['group']} {tr['engine']['z_group']:.1f})"
                   f"{'' if tr['visible'] or not d['effect'] else ': INVISIBLE'}]") if tr else ""
+            ref = d.get("refused") or {}
+            rd = f" [{d['recording']}; rigs redrawn {sum(ref.values())}: {ref}]" if ref else f" [{d['recording']}]"
             print(f"draw {d['draw']:3d} {d['effect']['name'] if d['effect'] else 'none':18s} "
-                  f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}{vs}", flush=True)
+                  f"{'PASS' if not d['failures'] else 'FAIL ' + '; '.join(d['failures'])}{vs}{rd}", flush=True)
     summarize(res, drawn, a.only_rigs)
     secs = [d.get("seconds", math.nan) for d in res]
     print(f"wall {time.perf_counter() - t0:.0f} s on {a.processes} processes; median {np.nanmedian(secs):.0f} s per "
