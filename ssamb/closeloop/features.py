@@ -51,10 +51,12 @@ difference into a real vector with unit covariance, the currency of every fit an
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy import fft as sfft
 from scipy import signal
 
@@ -120,6 +122,16 @@ class Layout:
     dl_views: tuple = ()
     dl_hz: tuple = ()
     dl_floor: tuple = ()
+    #: the excitations' Welch segments, per (axis, segment, length): the same for every replay
+    _segments: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def excitation_segments(self, axis: str, seg: slice, nper: int) -> np.ndarray:
+        """:func:`_welch_segments` of the excitation of ``axis`` over ``seg`` (segments x bins),
+        computed once per layout: every replay compared over it has the same excitation."""
+        key = (axis, seg.start, seg.stop, nper)
+        if key not in self._segments:
+            self._segments[key] = _welch_segments(self.signals[axis][seg][None, :], nper)[:, 0, :]
+        return self._segments[key]
 
     @property
     def f_bins_hz(self) -> np.ndarray:
@@ -686,7 +698,7 @@ def _cross_spectra(layout: Layout, x: np.ndarray, seg: slice) -> tuple:
     Y = _welch_segments(x, nper)[:, :, kb]
     if not layout.axes:                   # nothing excited (levitation at rest): no cross-spectra
         return np.zeros((0, len(kb), x.shape[0]), complex), Y, np.zeros((Y.shape[0], 0, len(kb)), complex)
-    Sa = np.stack([_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, kb] for a in layout.axes], axis=1)
+    Sa = np.stack([layout.excitation_segments(a, seg, nper)[:, kb] for a in layout.axes], axis=1)
     return np.einsum("svk,sak->akv", Y, Sa.conj()) / Y.shape[0], Y, Sa
 
 
@@ -698,7 +710,7 @@ def _low_noise(layout: Layout, x: np.ndarray, seg: slice, bins=(1, 2, 3)) -> np.
     Yall = _welch_segments(x, nper)
     kb = [k for k in bins if k < Yall.shape[2]]
     axes = [a for a in layout.axes if np.ptp(layout.signals[a][seg]) > 0]
-    Sall = [_welch_segments(layout.signals[a][seg][None, :], nper)[:, 0, :] for a in axes]
+    Sall = [layout.excitation_segments(a, seg, nper) for a in axes]
     n_seg = Yall.shape[0]
     G = np.zeros((x.shape[0], x.shape[0]))
     for k in kb:
@@ -736,11 +748,16 @@ def _periodic(layout: Layout, x: np.ndarray, fl2: np.ndarray, factors: tuple | N
 
 def _welch_segments(x: np.ndarray, nper: int) -> np.ndarray:
     """Hann-windowed DFTs of half-overlapping segments: (segments, rows, bins)."""
-    step = nper // 2
-    starts = range(0, x.shape[-1] - nper + 1, step)
+    v = np.moveaxis(sliding_window_view(x, nper, axis=-1)[..., ::nper // 2, :], -2, 0)
+    return sfft.rfft((v - v.mean(axis=-1, keepdims=True)) * _hann(nper), axis=-1)
+
+
+@functools.lru_cache(maxsize=16)
+def _hann(nper: int) -> np.ndarray:
+    """The periodic Hann window of ``nper`` samples (read-only: shared by every call)."""
     w = signal.windows.hann(nper, sym=False)
-    segs = np.stack([x[..., s:s + nper] - x[..., s:s + nper].mean(axis=-1, keepdims=True) for s in starts])
-    return sfft.rfft(segs * w, axis=-1)
+    w.flags.writeable = False
+    return w
 
 
 def _welch(layout: Layout, x: np.ndarray, seg: slice, fl2: np.ndarray) -> Features:
