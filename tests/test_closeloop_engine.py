@@ -957,3 +957,43 @@ def test_the_held_out_z_counts_the_predictions_own_noise():
     assert 0.6 < np.std(z_new) < 1.15, (np.std(z_new), np.std(z_old))
     assert abs(np.mean(z_new)) < 0.25
     assert np.std(z_old) > 1.5, (np.std(z_new), np.std(z_old))
+
+
+@pytest.mark.parametrize("stopped_short, depth, refitted", [(True, 40.0, True), (False, 40.0, False),
+                                                          (True, 0.5, False)])
+def test_a_fit_stopped_short_is_refitted_from_the_grid_scored_at_its_parameters(monkeypatch, stopped_short, depth,
+                                                                              refitted):
+    """An effect parameter d with basins at 0.2 and 0.8, scored with the other parameter at the
+    fit's value: a fit that stopped short far above the floor in the basin at 0.8 is refitted from
+    the grid point 0.2 when that one beats it by ``depth`` standard deviations of a one-replay cost
+    difference (40: refitted; half of one: not); a fit that did not stop short is kept as it is."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import fit as fitmod
+
+    n = 300
+    sd = fitmod._one_replay_margin(n) / 2.0
+
+    def mean_cost(theta):                   # the excess cost over the noise floor at theta
+        return (0.0 if abs(theta[1] - 0.2) < 0.1 else depth * sd) + 100.0 * (theta[0] - 1.0) ** 2
+
+    def batch(points):
+        return [np.random.default_rng(seed).normal(size=n) + np.sqrt(mean_cost(t) / n) for t, seed in points]
+
+    starts = []
+
+    def local_fit(prob, settings, log):     # a local fit ends where it starts
+        starts.append(np.array(prob.start))
+        return SimpleNamespace(theta=np.array(prob.start), chi2=n + mean_cost(prob.start), stopped_short=False)
+
+    monkeypatch.setattr(fitmod, "map_fit", local_fit)
+    prob = SimpleNamespace(batch=batch, seed0=5, lower=np.array([0.0, 0.0]), upper=np.array([2.0, 1.0]),
+                           start=np.array([0.0, 0.5]))
+    model = SimpleNamespace(params=("d",), grid=(np.array([0.2]), np.array([0.5]), np.array([0.8])))
+    fit = SimpleNamespace(theta=np.array([1.0, 0.8]), chi2=n + depth * sd, stopped_short=stopped_short)
+    out = fitmod._regridded(prob, model, fit, None, 1, None)
+    if refitted:
+        assert len(starts) == 1 and starts[0] == pytest.approx([1.0, 0.2])
+        assert out.theta == pytest.approx([1.0, 0.2])
+    else:
+        assert not starts and out is fit

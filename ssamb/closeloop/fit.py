@@ -305,6 +305,34 @@ def _coarse_start(prob, model, k: int) -> np.ndarray:
     return start
 
 
+def _regridded(prob, model, fit, settings, k: int, log):
+    r"""The fit, or the refit from the best point of the model's coarse grid (:func:`_coarse_start`)
+    with the other parameters at the fit's values, when the fit stopped short far above the noise
+    floor (:attr:`ssamb.closeloop.estimate.MapFit.stopped_short`) and that point beats the fit's
+    own by more than :func:`_one_replay_margin` (one replay each, one shared seed); the refit is kept
+    when its cost is lower.
+
+    The start's grid is scored with the refitted parameters at their start: where those are far
+    from the data (a conflicting parameter set back to its prior), the best grid point is the one
+    that stands in for their misfit, and a local fit from it ends in that point's basin (a sensor
+    delay several controller samples off). Scored again at the fitted parameters, the grid ranks
+    the basins by what the effect itself explains."""
+    if not (fit.stopped_short and model.grid):
+        return fit
+    points = [fit.theta] + [np.clip(np.concatenate([fit.theta[:k], g]), prob.lower, prob.upper) for g in model.grid]
+    res = prob.batch([(t, prob.seed0 + 997) for t in points])
+    chi2 = _one_replay_costs(res)
+    best = 1 + int(np.argmin(chi2[1:]))
+    if not chi2[best] < chi2[0] - _one_replay_margin(len(res[0])):
+        return fit
+    if log is not None:
+        log(f"grid point {dict(zip(model.params, points[best][k:].tolist()))} at the fitted parameters scores "
+            f"{chi2[best]:.1f} against the fit's {chi2[0]:.1f}: refitted from there")
+    prob.start = points[best]
+    other = map_fit(prob, settings, log)
+    return other if other.chi2 < fit.chi2 else fit
+
+
 def _alternatives(model, theta: np.ndarray, k: int) -> list:
     """A fit's points (``k`` refitted parameters, then the effect's) with the effect at its mirrors
     and aliases (:class:`ssamb.device.EffectModel`), within the effect's bounds."""
@@ -378,6 +406,8 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
         if len(models) == 1 and model.grid:
             prob.start = _coarse_start(prob, model, k)
         fit = map_fit(prob, settings, log)
+        if len(models) == 1:
+            fit = _regridded(prob, model, fit, settings, k, log)
         spread = None
         if len(models) == 1 and (model.mirrors is not None or model.aliases is not None):
             fit = _mirrored(cmp, base, model, fit, settings, seed0, step_rel, log)
