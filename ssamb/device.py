@@ -39,7 +39,7 @@ from typing import Callable, Mapping, Protocol
 
 import numpy as np
 
-__all__ = ["Record", "Replay", "EffectModel", "EffectModule", "FeatureSpec", "Device", "DEVICES",
+__all__ = ["Record", "Replay", "REPLAY_STREAM", "EffectModel", "EffectModule", "FeatureSpec", "Device", "DEVICES",
            "get_device", "device_names", "effect_modules", "log10_p_two_sided", "log10_p_upper"]
 
 
@@ -110,6 +110,13 @@ class Record:
     @property
     def duration_s(self) -> float:
         return self.n / self.fs_hz
+
+
+#: the noise stream of a model's replays (a key of their seed sequences besides the seed; a
+#: simulated experiment or rig draws from stream 0): a replay with a simulated rig's seed would
+#: otherwise repeat the rig's in-loop noise sample for sample, and a model near the truth would be
+#: credited with the data's own noise (a real rig's data are never one of the model's replays)
+REPLAY_STREAM = 0x5E9
 
 
 @dataclass

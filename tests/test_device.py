@@ -170,7 +170,7 @@ def test_a_replay_never_repeats_the_noise_of_a_rig_simulated_with_its_seed(tmp_p
     """A simulated rig (seed 4, the model's own parameters, no logging noise) and the AMB's
     replays of its record with seeds 4 and 5: the replay with the rig's seed is as far from the
     rig's x channel as the one with another seed (its converter noise is its own stream,
-    :data:`ssamb.sim.device.REPLAY_STREAM`), not a copy of it; and a replay is reproducible."""
+    :data:`ssamb.device.REPLAY_STREAM`), not a copy of it; and a replay is reproducible."""
     import yaml
 
     from ssamb.config import load_config

@@ -319,16 +319,27 @@ def _regridded(prob, model, fit, settings, k: int, log):
     the basins by what the effect itself explains."""
     if not (fit.stopped_short and model.grid):
         return fit
-    points = [fit.theta] + [np.clip(np.concatenate([fit.theta[:k], g]), prob.lower, prob.upper) for g in model.grid]
-    res = prob.batch([(t, prob.seed0 + 997) for t in points])
+    points = [np.clip(np.concatenate([fit.theta[:k], g]), prob.lower, prob.upper) for g in model.grid]
+    return _refit_from_best(prob, model, fit, points, k, -1.0, 997, "grid point", " at the fitted parameters",
+                            settings, log)
+
+
+def _refit_from_best(prob, model, fit, points: list, k: int, slack: float, seed_offset: int, what: str,
+                     where: str, settings, log):
+    r"""The fit, or the refit from the best of ``points`` when its cost is below the fit's plus
+    ``slack`` times :func:`_one_replay_margin`: the fit and every point are replayed once with one
+    shared seed (``prob.seed0 + seed_offset``); the refit is kept when its cost is lower. A
+    negative ``slack`` asks the point to beat the fit, a positive one lets a point that one replay
+    cannot tell from the fit be tried."""
+    res = prob.batch([(t, prob.seed0 + seed_offset) for t in [fit.theta] + list(points)])
     chi2 = _one_replay_costs(res)
     best = 1 + int(np.argmin(chi2[1:]))
-    if not chi2[best] < chi2[0] - _one_replay_margin(len(res[0])):
+    if not chi2[best] < chi2[0] + slack * _one_replay_margin(len(res[0])):
         return fit
     if log is not None:
-        log(f"grid point {dict(zip(model.params, points[best][k:].tolist()))} at the fitted parameters scores "
-            f"{chi2[best]:.1f} against the fit's {chi2[0]:.1f}: refitted from there")
-    prob.start = points[best]
+        log(f"{what} {dict(zip(model.params, points[best - 1][k:].tolist()))}{where} scores {chi2[best]:.1f} "
+            f"against the fit's {chi2[0]:.1f}: refitted from there")
+    prob.start = points[best - 1]
     other = map_fit(prob, settings, log)
     return other if other.chi2 < fit.chi2 else fit
 
@@ -352,17 +363,7 @@ def _mirrored(cmp, base, model, fit, settings, seed0: int, step_rel: float, log)
     alts = _alternatives(model, fit.theta, k)
     if not alts:
         return fit
-    res = prob.batch([(t, prob.seed0 + 998) for t in [fit.theta] + alts])
-    chi2 = _one_replay_costs(res)
-    best = 1 + int(np.argmin(chi2[1:]))
-    if not chi2[best] < chi2[0] + _one_replay_margin(len(res[0])):
-        return fit
-    if log is not None:
-        log(f"mirror {dict(zip(model.params, alts[best - 1][k:].tolist()))} scores {chi2[best]:.1f} against the "
-            f"fit's {chi2[0]:.1f}: refitted from there")
-    prob.start = alts[best - 1]
-    other = map_fit(prob, settings, log)
-    return other if other.chi2 < fit.chi2 else fit
+    return _refit_from_best(prob, model, fit, alts, k, 1.0, 998, "mirror", "", settings, log)
 
 
 def alias_sd(prob, model, fit, k: int, replays: int = 4) -> np.ndarray:

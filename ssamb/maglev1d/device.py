@@ -26,7 +26,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..device import Device, FeatureSpec, Record, Replay
+from ..device import REPLAY_STREAM, Device, FeatureSpec, Record, Replay
 from ..io import DataError
 from . import config as _config
 from . import controller as _ctl
@@ -53,12 +53,9 @@ def one_level_family(a_m: float, k_h: float, gain: float, new_gain: float, level
     return a2, k_h * a_m / a2
 
 
-#: the noise streams (keys of the seed sequence besides the seed): a rig's own log
-#: (:meth:`Maglev1D.simulate_log`, :meth:`Maglev1D.rig_log`) draws from ``RIG_STREAM``, the model's
-#: replays of a record from ``REPLAY_STREAM``; a replay with a simulated rig's seed would otherwise
-#: repeat the rig's noise sample for sample, and a model near the rig's truth would be credited with
-#: the data's own noise (a real rig's data are never one of the model's replays)
-RIG_STREAM, REPLAY_STREAM = 0, 0x5E9
+#: the noise stream of a rig's own log (:meth:`Maglev1D.simulate_log`, :meth:`Maglev1D.rig_log`);
+#: the model's replays of a record draw from :data:`ssamb.device.REPLAY_STREAM`
+RIG_STREAM = 0
 
 
 def _draws(seed: int | None, n: int, additive: bool, stream: int = REPLAY_STREAM) -> tuple:

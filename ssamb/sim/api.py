@@ -109,7 +109,7 @@ class SimOptions:
     noise_stream : int
         The converter noise's stream, a key of its seed sequence besides the seed: 0 for an
         experiment; a model's replays of measured data draw from a stream of their own
-        (:data:`ssamb.sim.device.REPLAY_STREAM`), so that no replay reproduces the noise of an
+        (:data:`ssamb.device.REPLAY_STREAM`), so that no replay reproduces the noise of an
         experiment simulated with the same seed (a simulated rig's data are then not one of
         the model's replays, as a real rig's never are).
     """

@@ -26,7 +26,7 @@ from typing import Mapping
 
 import numpy as np
 
-from ..device import Device, FeatureSpec, Record, Replay
+from ..device import REPLAY_STREAM, Device, FeatureSpec, Record, Replay
 from ..io import DataError
 
 __all__ = ["AMB", "CHANNELS", "VIEWS", "COST_VIEWS", "pwm_lines", "views", "record_from_arrays",
@@ -40,11 +40,6 @@ CURRENT_CHANNELS = ("i_ypos", "i_yneg", "i_xpos", "i_xneg")
 VIEWS = ("x_meas", "y_ss", "y_meas", "d_x", "d_y", "c_x", "c_y", "u_x", "u_y")
 #: views compared in the cost: positions and coil currents (module docstring)
 COST_VIEWS = ("x_meas", "d_x", "c_x", "y_ss", "y_meas", "d_y", "c_y")
-#: the converter-noise stream of the model's replays (:attr:`ssamb.sim.api.SimOptions.noise_stream`):
-#: a simulated rig draws from stream 0, and a replay with the rig's seed would otherwise repeat its
-#: in-loop noise sample for sample -- its x loop exactly, its self-sensed y loop until the chaos
-#: parts them -- and a model near the truth would be credited with the data's own noise
-REPLAY_STREAM = 0x5E9
 
 #: the nominal parameters a rig never matches exactly, with their tolerances (config.yaml gives
 #: the reasons); used when a config has no ``closeloop.calibration``
