@@ -949,7 +949,8 @@ def test_the_held_out_z_counts_the_predictions_own_noise():
                 for k in (0, 1)}
         cmp = SimpleNamespace(seeds=tuple(range(m)), device=SimpleNamespace(channels=("v",)),
                               replay=SimpleNamespace(runs=lambda eff, nn, ov, seeds: runs[ov["k"]]),
-                              residual=lambda part, pred: pred["v"], noise_factors=lambda part, ov, eff: np.ones(n))
+                              residual=lambda part, pred: pred["v"], noise_factors=lambda part, ov, eff: np.ones(n),
+                              memoised=lambda kind, part, ov, eff, compute: compute())
         pred = {k: {"v": np.mean([r["v"] for r in runs[k]], axis=0)} for k in (0, 1)}
         z_new.append(improvement_z(cmp, None, Base({"k": 0}, [], pred[0]), pred[1], {"k": 1}, []))
         r0, r1 = pred[0]["v"], pred[1]["v"]
@@ -959,14 +960,17 @@ def test_the_held_out_z_counts_the_predictions_own_noise():
     assert np.std(z_old) > 1.5, (np.std(z_new), np.std(z_old))
 
 
-@pytest.mark.parametrize("stopped_short, depth, refitted", [(True, 40.0, True), (False, 40.0, False),
-                                                          (True, 0.5, False)])
+@pytest.mark.parametrize("stopped_short, depth, start_excess, refitted",
+                         [(True, 40.0, 1e4, True), (False, 40.0, 1e4, False), (True, 0.5, 1e4, False),
+                          (True, 40.0, 1.5, False)])
 def test_a_fit_stopped_short_is_refitted_from_the_grid_scored_at_its_parameters(monkeypatch, stopped_short, depth,
-                                                                              refitted):
+                                                                              start_excess, refitted):
     """An effect parameter d with basins at 0.2 and 0.8, scored with the other parameter at the
     fit's value: a fit that stopped short far above the floor in the basin at 0.8 is refitted from
     the grid point 0.2 when that one beats it by ``depth`` standard deviations of a one-replay cost
-    difference (40: refitted; half of one: not); a fit that did not stop short is kept as it is."""
+    difference (40: refitted; half of one: not); a fit that did not stop short is kept as it is, and
+    so is one that removed less than half of its start's excess (``start_excess`` times its own:
+    1.5, a third removed)."""
     from types import SimpleNamespace
 
     from ssamb.closeloop import fit as fitmod
@@ -990,10 +994,36 @@ def test_a_fit_stopped_short_is_refitted_from_the_grid_scored_at_its_parameters(
     prob = SimpleNamespace(batch=batch, seed0=5, lower=np.array([0.0, 0.0]), upper=np.array([2.0, 1.0]),
                            start=np.array([0.0, 0.5]))
     model = SimpleNamespace(params=("d",), grid=(np.array([0.2]), np.array([0.5]), np.array([0.8])))
-    fit = SimpleNamespace(theta=np.array([1.0, 0.8]), chi2=n + depth * sd, stopped_short=stopped_short)
+    fit = SimpleNamespace(theta=np.array([1.0, 0.8]), chi2=n + depth * sd, stopped_short=stopped_short, floor=n,
+                          history=[{"probe": ["d"]}, {"iteration": 0, "chi2": n + start_excess * depth * sd}])
     out = fitmod._regridded(prob, model, fit, None, 1, None)
     if refitted:
         assert len(starts) == 1 and starts[0] == pytest.approx([1.0, 0.2])
         assert out.theta == pytest.approx([1.0, 0.2])
     else:
         assert not starts and out is fit
+
+
+def test_a_comparison_keeps_what_it_reads_off_a_models_replays_while_its_part_stays_the_same():
+    """:meth:`Comparison.memoised`: the same kind, part and model give the kept value without
+    computing it again; another model, or the part's whitener replaced (new lines, a new noise
+    calibration), computes it anew."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.comparison import Comparison
+
+    cmp = Comparison.__new__(Comparison)
+    cmp._memo, cmp.seeds = {}, (1, 2, 3)
+    part = SimpleNamespace(layout=object(), data=object(), whitener=object())
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return len(calls)
+    ov, eff = {"table1.mass_kg": 1.0}, [{"name": "static_load", "fx_n": 2.0, "fy_n": 0.0}]
+    assert cmp.memoised("k", part, ov, eff, compute) == 1
+    assert cmp.memoised("k", part, dict(ov), [dict(eff[0])], compute) == 1
+    assert cmp.memoised("k", part, {"table1.mass_kg": 1.5}, eff, compute) == 2
+    part.whitener = object()
+    assert cmp.memoised("k", part, ov, eff, compute) == 3
+    assert len(calls) == 3

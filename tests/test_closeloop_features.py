@@ -314,7 +314,7 @@ def test_a_single_period_held_out_part_reads_its_dc_noise_from_the_fitting_part(
 
 
 def test_a_device_line_whose_replays_spread_has_its_own_noise_factor():
-    """:meth:`ssamb.closeloop.comparison.Comparison.noise_factors`: a view's entries share the
+    """:meth:`ssamb.closeloop.comparison.Comparison.noise_factors` (uncached): a view's entries share the
     median replicate variance (times 1 + 1/m, over the median of chi-square over its degrees of
     freedom); a device line (its real and imaginary entries, not adjacent in the vector) whose
     replicates spread 25 times more keeps its own variance, one that spreads less keeps the
@@ -333,7 +333,7 @@ def test_a_device_line_whose_replays_spread_has_its_own_noise_factor():
     part = SimpleNamespace(whitener=SimpleNamespace(labels=labels))
     fake = SimpleNamespace(seeds=range(m), replay=SimpleNamespace(runs=lambda e, n, o, s: runs),
                            residual=lambda p, r: r, groups=lambda p: [np.arange(8)])
-    out = Comparison.noise_factors(fake, part)
+    out = Comparison._noise_factors(fake, part, None, ())
     shared = (1 + 1 / m) / (1 - 2 / (9 * (m - 1))) ** 3
     assert out[[0, 1, 2, 3, 4, 6]] == pytest.approx(np.full(6, shared))
     assert out[[5, 7]] == pytest.approx(np.full(2, 25.0 * (1 + 1 / m)))

@@ -36,6 +36,10 @@ from .spectra import Frame, make_frame
 
 __all__ = ["Comparison", "Part", "PartResidual"]
 
+#: models whose noise factors and leave-one-replay-out residuals a comparison keeps
+#: (:meth:`Comparison.memoised`)
+MEMO_SIZE = 64
+
 
 @dataclass
 class Part:
@@ -137,6 +141,7 @@ class Comparison:
     dl_relative: float = 0.0
     stops_infeasible: bool = False
     _nominal: dict = field(default_factory=dict, repr=False)
+    _memo: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, record: Record, split: Split, replay: Replayer, seeds, settings) -> "Comparison":
@@ -312,6 +317,25 @@ class Comparison:
             return out
         return many
 
+    def memoised(self, kind: str, part: Part, overrides, effects, compute):
+        """``compute()``, kept per ``kind``, part and model (``overrides``, ``effects``, :attr:`seeds`)
+        while the part's layout, data and whitener stay the objects they were: the replays of a
+        model are deterministic, so what is read off them is too, and a search compares one base
+        with many candidates. The last :data:`MEMO_SIZE` are kept."""
+        key = (kind, id(part), Replayer._key([dict(e) for e in effects], None,
+                                              {k: float(v) for k, v in sorted((overrides or {}).items())},
+                                              list(self.seeds)))
+        state = (part.layout, part.data, part.whitener)
+        hit = self._memo.pop(key, None)
+        if hit is not None and all(a is b for a, b in zip(hit[0], state)):
+            self._memo[key] = hit
+            return hit[1]
+        value = compute()
+        self._memo[key] = (state, value)
+        while len(self._memo) > MEMO_SIZE:
+            self._memo.pop(next(iter(self._memo)))
+        return value
+
     def noise_factors(self, part: Part, overrides=None, effects=()) -> np.ndarray:
         r"""Per-entry factor of the noise of a prediction's residual over its assumed unit.
 
@@ -325,6 +349,10 @@ class Comparison:
         record, and a pooled factor lets those few entries decide every held-out comparison (the
         validation page has the measured case).
         """
+        return self.memoised("noise_factors", part, overrides, effects,
+                             lambda: self._noise_factors(part, overrides, effects)).copy()
+
+    def _noise_factors(self, part: Part, overrides, effects) -> np.ndarray:
         reps = np.array([self.residual(part, r) for r in self.replay.runs(effects, None, overrides, self.seeds)])
         m = len(reps)
         out = np.ones(reps.shape[1])

@@ -142,21 +142,30 @@ def replay_jackknife(cmp: Comparison, part: Part, base: Base, overrides: dict, e
     costs (:func:`jackknife_variance`): where the replays of the two models part (a chaotic loop),
     :math:`\lVert r_0\rVert^2 - \lVert r_1\rVert^2` moves with the replays' seeds as much as with
     the data, which the data's unit noise alone does not say."""
-    runs0 = cmp.replay.runs(base.effects, None, base.overrides, cmp.seeds)
-    runs1 = cmp.replay.runs(effects, None, overrides, cmp.seeds)
-    m = len(runs0)
-    if m < 3 or len(runs1) != m:
+    r0 = cmp.memoised("jackknife", part, base.overrides, base.effects,
+                      lambda: _leave_one_out(cmp, part, base.overrides, base.effects))
+    r1 = cmp.memoised("jackknife", part, overrides, effects, lambda: _leave_one_out(cmp, part, overrides, effects))
+    if r0 is None or r1 is None or len(r0) != len(r1):
+        return None
+    return np.array([r * scale for r in r0]), np.array([r * scale for r in r1])
+
+
+def _leave_one_out(cmp: Comparison, part: Part, overrides: dict, effects: list) -> list | None:
+    """The whitened residuals of a model's leave-one-replay-out predictions over ``part``
+    (:func:`replay_jackknife`), or None with fewer than three replays."""
+    runs = cmp.replay.runs(effects, None, overrides, cmp.seeds)
+    m = len(runs)
+    if m < 3:
         return None
     chans = cmp.device.channels
 
-    def without(runs, j):
+    def without(j):
         keep = [r for i, r in enumerate(runs) if i != j]
         out = {c: np.mean([r[c] for r in keep], axis=0) for c in chans}
         out["delevitated"] = any(bool(r["delevitated"]) for r in keep)
         out["runs"] = [{c: r[c] for c in chans} for r in keep]
         return out
-    return (np.array([cmp.residual(part, without(runs0, j)) * scale for j in range(m)]),
-            np.array([cmp.residual(part, without(runs1, j)) * scale for j in range(m)]))
+    return [cmp.residual(part, without(j)) for j in range(m)]
 
 
 def jackknife_variance(jk: tuple | None, idx=None) -> float:
@@ -316,12 +325,23 @@ def _regridded(prob, model, fit, settings, k: int, log):
     from the data (a conflicting parameter set back to its prior), the best grid point is the one
     that stands in for their misfit, and a local fit from it ends in that point's basin (a sensor
     delay several controller samples off). Scored again at the fitted parameters, the grid ranks
-    the basins by what the effect itself explains."""
-    if not (fit.stopped_short and model.grid):
+    the basins by what the effect itself explains. Where the fit removed less than half of its
+    start's excess over the floor (:func:`_moved_far`), the refitted parameters stayed near their
+    start and the grid would rank the basins as it did there: it is not scored again."""
+    if not (fit.stopped_short and model.grid and _moved_far(fit)):
         return fit
     points = [np.clip(np.concatenate([fit.theta[:k], g]), prob.lower, prob.upper) for g in model.grid]
     return _refit_from_best(prob, model, fit, points, k, -1.0, 997, "grid point", " at the fitted parameters",
                             settings, log)
+
+
+def _moved_far(fit) -> bool:
+    r"""Whether a fit removed more than half of its start's excess cost over the noise floor,
+    :math:`\chi^2_0 - \chi^2 > (\chi^2_0 - F)/2` (:math:`\chi^2_0` the first centre's cost in
+    :attr:`ssamb.closeloop.estimate.MapFit.history`, :math:`F` the floor): its parameters moved the
+    landscape the start's grid was scored on."""
+    start = next((h["chi2"] for h in fit.history if "chi2" in h), None)
+    return start is not None and start - fit.chi2 > 0.5 * (start - fit.floor)
 
 
 def _refit_from_best(prob, model, fit, points: list, k: int, slack: float, seed_offset: int, what: str,
