@@ -55,8 +55,7 @@ class Frame:
     line_mask : numpy.ndarray of bool
         Bins where lines the excitation lacks are searched: every bin but DC and the excited
         lines (periodic frames: unexcited grid bins included), else away from the excitation's
-        own narrow lines that last through the segment (a broadband excitation, or a sweep,
-        excludes none).
+        own narrow lines (a broadband excitation excludes none).
     excited : dict
         Per excited axis, the bin indices of the excited lines (periodic frames).
     """
@@ -127,38 +126,15 @@ def make_frame(fs_hz: float, i0: int, n: int, excitation: dict, n_period: int | 
     for s in excitation.values():
         pw = np.maximum(pw, np.abs(np.fft.rfft(window * (s[i0:i0 + n] - np.mean(s[i0:i0 + n])))) ** 2)
     exc_mask = pw > 1e-4 * pw.max() if pw.max() > 0 else np.zeros(nb, bool)
-    # narrow lines of the excitation itself: 100 x above its local (banded) median, and lasting
-    # through the segment (a sweep's band is as narrow against a wide band's median, but the
-    # sweep passes each frequency once: a line spinning inside its range is searched for)
+    # narrow lines of the excitation itself: 100 x above its local (banded) median
     exc_lines = np.zeros(nb, bool)
     if pw.max() > 0:
         for a, b in _bands(np.ones(nb, bool), 64, 32):
             med = np.median(pw[a:b])
             exc_lines[a:b] = (pw[a:b] > 100.0 * max(med, 1e-300)) & (pw[a:b] > 1e-8 * pw.max())
-        exc_lines &= _lasting(fs_hz, i0, n, excitation, f)
         exc_lines = np.convolve(exc_lines.astype(float), np.ones(5), mode="same") > 0   # Hann main lobe
     return Frame(fs_hz, i0, n, window, float(np.sum(window ** 2)), f, False, None, ~exc_mask,
                  exc_mask, excited, ~exc_lines)
-
-
-def _lasting(fs_hz: float, i0: int, n: int, excitation: dict, f_hz: np.ndarray, parts: int = 4,
-             share: float = 0.1) -> np.ndarray:
-    r"""Bins (of ``f_hz``) where some axis' excitation lasts through the segment ``[i0, i0 + n)``:
-    in each of ``parts`` equal parts (Hann-tapered, their coarser bins mapped to the nearest)
-    its power is at least ``share`` of its largest part's. A multisine's line lasts; a sweep
-    passes each frequency in one part, where the others hold only leakage. Below two of the
-    parts' bins they cannot tell: counted as lasting."""
-    q = n // parts
-    out = np.zeros(len(f_hz), bool)
-    if q < 8:
-        return ~out
-    w = signal.windows.hann(q, sym=False)
-    k = np.minimum(np.round(f_hz * q / fs_hz).astype(int), q // 2)
-    for s in excitation.values():
-        seg = np.asarray(s[i0:i0 + parts * q], float)
-        p = np.array([np.abs(np.fft.rfft(w * (x - np.mean(x)))) ** 2 for x in seg.reshape(parts, q)])
-        out |= (p.min(axis=0) >= share * p.max(axis=0))[k] & (p.max(axis=0)[k] > 0)
-    return out | (k < 2)
 
 
 def dft(frame: Frame, x: np.ndarray) -> np.ndarray:
