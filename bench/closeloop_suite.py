@@ -238,6 +238,9 @@ def _tasks(args) -> list:
     kinds = args.kinds.split(",")
     t = [(k, kinds[k % len(kinds)], False) for k in range(args.start, args.start + args.draws)]
     t += [(k, kinds[k % len(kinds)], True) for k in range(args.start, args.start + args.null)]
+    if args.only:
+        keep = {int(k) for k in args.only.split(",")}
+        t = [x for x in t if x[0] in keep]
     return t
 
 
@@ -309,6 +312,8 @@ def main() -> None:
     ap.add_argument("--procs", type=int, default=2, help="processes (each its own numba cache)")
     ap.add_argument("--workers", type=int, default=1, help="replay workers per analysis")
     ap.add_argument("--out", default="closeloop_suite", help="folder of the per-process JSON lines")
+    ap.add_argument("--only", metavar="K,K,...", help="run only these draw numbers of the ranges (the same draws: "
+                    "a draw's number sets its rig and experiment)")
     ap.add_argument("--summary", metavar="DIR", help="print the summary of DIR and exit")
     ap.add_argument("--one", type=int, metavar="K", help="run draw K alone, with the analysis's progress, and print it")
     ap.add_argument("--kind", help="with --one: the draw's experiment kind (default: as the suite cycles)")
