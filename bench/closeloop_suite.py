@@ -3,6 +3,7 @@ rig runs, judged against the truth the suite knows.
 
     python bench/closeloop_suite.py --draws 60 --null 50 --procs 2 --out suite_dir
     python bench/closeloop_suite.py --summary suite_dir        # the summary of what is there
+    python bench/closeloop_suite.py --draws 60 --only 2,6,58 --out again   # these draws alone
 
 Each **draw** (:func:`run_draw`) makes a rig: every calibratable nominal parameter perturbed
 uniformly within :data:`ssamb.rig.SUITE_PERTURB`, one library effect (none in a quarter of the
