@@ -202,6 +202,11 @@ class EffectModule(Protocol):
     ORDER : int, optional
         The effect's place in the library (ties of the evidence are broken in this order; 100
         when absent, then by name).
+    ALIASES : tuple of str, optional
+        Library effects this one imitates exactly on some experiment, by its physics (a cross
+        coupling of the gravity-loaded y fluxes is a constant x force at rest: a static load).
+        Once one of them passes in a round, the other is fitted and judged too, and both are
+        named when the held-out part cannot tell them apart (:meth:`Device.aliases`).
     """
 
     NAME: str
@@ -334,6 +339,14 @@ class Device:
     def library(self) -> tuple:
         """The effects close the loop looks for."""
         return tuple(n for n, m in self.effects.items() if m.SEARCHABLE)
+
+    def aliases(self, name: str) -> tuple:
+        """The library effects that can imitate ``name`` or that ``name`` can imitate (either
+        module's ``ALIASES``), in library order."""
+        lib = self.effects
+        mine = set(getattr(lib[name], "ALIASES", ())) if name in lib else set()
+        return tuple(n for n in self.library
+                     if n != name and (n in mine or name in getattr(lib[n], "ALIASES", ())))
 
     def effect_model(self, name: str, hints: dict, record: Record, settings) -> EffectModel | str:
         return self.effects[name].model(hints, record, settings)

@@ -782,8 +782,8 @@ def _passing(name: str, value: float):
     from types import SimpleNamespace
 
     return SimpleNamespace(names=(name,), model=SimpleNamespace(name=name, params=("size",)),
-                           fit=SimpleNamespace(theta=np.array([0.1, value])), n_free=1, overrides={}, effects=[],
-                           pred={"name": name})
+                           fit=SimpleNamespace(theta=np.array([0.1, value]), se=np.array([0.01, value / 10])),
+                           n_free=1, overrides={}, effects=[], pred={"name": name}, passed=True)
 
 
 @pytest.mark.parametrize("z_table, choice, rivals", [
@@ -812,6 +812,45 @@ def test_the_champion_of_a_round_and_its_rivals(monkeypatch, z_table, choice, ri
     assert [r["name"] for r in riv] == rivals
     for r in riv:
         assert r["params"] == {"size": 5.2e-3} and r["z"] == z_table.get(("eddy_current", "sensor_delay"), 0.0)
+        assert r["uncertainty"] == {"size": pytest.approx(5.2e-4)}
+
+
+def test_the_effects_a_static_load_can_be_are_fitted_beside_it(monkeypatch):
+    """:func:`ssamb.closeloop.search._alias_candidates`: once a static load passes, the cross
+    coupling that gives the same force at rest (the AMB's ``ALIASES``, either way round) is fitted
+    and judged in the same round unless it was tried there already or is in the base; one that
+    passed already is reused, not refitted; an effect without aliases fits nothing more."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search
+    from ssamb.device import get_device
+
+    amb = get_device("amb")
+    assert amb.aliases("static_load") == ("cross_coupling",)
+    assert amb.aliases("cross_coupling") == ("static_load",)
+    assert amb.aliases("sensor_delay") == ()
+    fitted = []
+
+    def fake_try(cmp, base, names, *args, **kw):
+        fitted.append(names[0])
+        return _passing(names[0], 0.09)
+    monkeypatch.setattr(search, "_try", fake_try)
+    monkeypatch.setattr(search, "_entry", lambda cand, rnd, settings: {"name": cand.names[0]})
+    cmp = SimpleNamespace(device=amb, record=None)
+    load = _passing("static_load", 7.0)
+
+    def aliases(best, passing, tried=(), taken=()):
+        info = {"candidates": [{"name": n} for n in tried]}
+        b = search.Base({}, [{"name": n} for n in taken], {})
+        return search._alias_candidates(cmp, b, best, passing, {}, None, info, None, None, 0, False, False)
+    got = aliases(load, [load])
+    assert fitted == ["cross_coupling"] and [c.model.name for c in got] == ["cross_coupling"]
+    fitted.clear()
+    assert aliases(load, [load], tried=["cross_coupling"]) == [] and fitted == []
+    assert aliases(load, [load], taken=["cross_coupling"]) == [] and fitted == []
+    twin = _passing("cross_coupling", 0.1)
+    assert aliases(load, [load, twin], tried=["cross_coupling"]) == [twin] and fitted == []
+    assert aliases(_passing("sensor_delay", 1e-5), [load]) == [] and fitted == []
 
 
 @pytest.mark.parametrize("z_nested, explained, passes", [(1.0, 0.5, False), (5.0, 0.5, True), (5.0, 0.04, False)])
@@ -898,7 +937,7 @@ def test_an_effect_hidden_by_a_larger_one_is_tried_again_beside_it(monkeypatch, 
     settings = Settings()
     ev = {n: SimpleNamespace(log10_p=0.0, hints={}, to_json=lambda: {}) for n in ("static_load", "sensor_delay")}
     lib = {n: SimpleNamespace(NEEDS_HINT=False) for n in ev}
-    cmp = SimpleNamespace(record=None, device=SimpleNamespace(effects=lib))
+    cmp = SimpleNamespace(record=None, device=SimpleNamespace(effects=lib, aliases=lambda n: ()))
     fitted = []
 
     class FakeBase:

@@ -496,6 +496,27 @@ def _rival_candidates(cmp, base, ev, ft, info, settings, est, rnd, measured_cont
     return out
 
 
+def _alias_candidates(cmp, base, best, passing, ev, ft, info, settings, est, rnd, measured_contact,
+                      progress) -> list:
+    """The passing candidates of a round among the library effects that can imitate ``best``'s
+    effect by their physics (:meth:`ssamb.device.Device.aliases`); those not yet tried in the round
+    are fitted and judged now (:func:`_try`). A static load found at rest is then set against the
+    cross coupling that gives the same constant force, which its signature there never names."""
+    if len(best.names) != 1:
+        return []
+    names = cmp.device.aliases(best.model.name)
+    taken = {e["name"] for e in base.effects}
+    tried = {c["name"] for c in info["candidates"]}
+    out = [c for c in passing if c is not best and len(c.names) == 1 and c.model.name in names]
+    for j, name in enumerate(n for n in names if n not in taken and n not in tried):
+        cand = _try(cmp, base, [name], ev, cmp.record, settings, est, 10_000 * (rnd + 1) + 8000 + 100 * j, ft,
+                    measured_contact, progress)
+        info["candidates"].append({**_entry(cand, rnd, settings), "alias_check": True})
+        if cand.passed:
+            out.append(cand)
+    return out
+
+
 def champion(cmp: Comparison, base: Base, passing: list, best: Candidate, settings) -> tuple:
     r"""The passing candidate of a round that no other passing one beats on the held-out part,
     and its *rivals*: the passing candidates the held-out part cannot tell from it.
@@ -509,8 +530,8 @@ def champion(cmp: Comparison, base: Base, passing: list, best: Candidate, settin
     data) are both named, the choice first, and the report says the data cannot tell them
     apart instead of counting the choice as a finding of its own.
 
-    Returns ``(choice, rivals)``, each rival ``{"name", "params", "z"}`` (:math:`z` of the choice
-    over the rival).
+    Returns ``(choice, rivals)``, each rival ``{"name", "params", "uncertainty", "z"}`` (its fitted
+    parameters, their standard errors, and :math:`z` of the choice over the rival).
     """
     z_c = float(stats.norm.isf(settings.alpha_accept))
 
@@ -532,7 +553,7 @@ def champion(cmp: Comparison, base: Base, passing: list, best: Candidate, settin
         z = z_over(c, choice)
         if z <= z_c and c.model.name != choice.model.name:
             rivals.append({"name": c.model.name, "params": dict(zip(c.model.params, c.fit.theta[c.n_free:].tolist())),
-                           "z": float(z)})
+                           "uncertainty": dict(zip(c.model.params, c.fit.se[c.n_free:].tolist())), "z": float(z)})
     return choice, rivals
 
 
@@ -599,9 +620,14 @@ def _effect_search(cmp: Comparison, base: Base, settings, est, out: SearchResult
         if settings.rivals:
             passing += _rival_candidates(cmp, base, ev, ft, info, settings, est, rnd, measured_contact, progress)
             best, rivals = champion(cmp, base, passing, best, settings)
-            if rivals:
-                _log(progress, f"round {rnd}: {best.model.name} and {', '.join(r['name'] for r in rivals)} explain the "
-                               f"held-out part alike: the data cannot tell them apart ({best.model.name} reported)")
+        else:
+            twins = _alias_candidates(cmp, base, best, passing, ev, ft, info, settings, est, rnd, measured_contact,
+                                      progress)
+            if twins:
+                best, rivals = champion(cmp, base, [best] + twins, best, settings)
+        if rivals:
+            _log(progress, f"round {rnd}: {best.model.name} and {', '.join(r['name'] for r in rivals)} explain the "
+                           f"held-out part alike: the data cannot tell them apart ({best.model.name} reported)")
         for sl, m in zip(best.slices(), best.models):
             th = best.fit.theta[sl]
             se = best.fit.se[sl]

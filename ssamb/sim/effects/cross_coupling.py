@@ -22,6 +22,9 @@ NAME = "cross_coupling"
 REQUIRED = ("coefficient",)
 OPTIONAL = ()
 SIGNATURE = "residual in one axis coherent with the other axis' excitation; x current offset from gravity"
+# at rest the y fluxes are constant: the coupled x force is c times the gravity-loaded y force,
+# a constant x force that a static load gives alike
+ALIASES = ("static_load",)
 SEARCHABLE = True
 NEEDS_HINT = False
 ORDER = 6
