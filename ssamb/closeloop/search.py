@@ -486,11 +486,19 @@ def _rival_candidates(cmp, base, ev, ft, info, settings, est, rnd, measured_cont
     rest = [n for n in rank(ev) if n not in taken and n not in tried]
     rest += [n for n in sorted(ev, key=lambda n: ev[n].log10_p)
              if not lib[n].NEEDS_HINT and n not in taken and n not in tried and n not in rest]
+    return _fit_each(cmp, base, rest, ev, ft, info, settings, est, rnd, measured_contact, progress, 7000,
+                     "rival_check")
+
+
+def _fit_each(cmp, base, names, ev, ft, info, settings, est, rnd, measured_contact, progress, seed_block: int,
+              flag: str) -> list:
+    """Fit and judge each effect of ``names`` alone in round ``rnd`` (:func:`_try`; its seeds from
+    ``seed_block``), log each as a candidate marked ``flag``, and return the passing ones."""
     out = []
-    for j, name in enumerate(rest):
-        cand = _try(cmp, base, [name], ev, cmp.record, settings, est, 10_000 * (rnd + 1) + 7000 + 100 * j, ft,
+    for j, name in enumerate(names):
+        cand = _try(cmp, base, [name], ev, cmp.record, settings, est, 10_000 * (rnd + 1) + seed_block + 100 * j, ft,
                     measured_contact, progress)
-        info["candidates"].append({**_entry(cand, rnd, settings), "rival_check": True})
+        info["candidates"].append({**_entry(cand, rnd, settings), flag: True})
         if cand.passed:
             out.append(cand)
     return out
@@ -508,13 +516,8 @@ def _alias_candidates(cmp, base, best, passing, ev, ft, info, settings, est, rnd
     taken = {e["name"] for e in base.effects}
     tried = {c["name"] for c in info["candidates"]}
     out = [c for c in passing if c is not best and len(c.names) == 1 and c.model.name in names]
-    for j, name in enumerate(n for n in names if n not in taken and n not in tried):
-        cand = _try(cmp, base, [name], ev, cmp.record, settings, est, 10_000 * (rnd + 1) + 8000 + 100 * j, ft,
-                    measured_contact, progress)
-        info["candidates"].append({**_entry(cand, rnd, settings), "alias_check": True})
-        if cand.passed:
-            out.append(cand)
-    return out
+    return out + _fit_each(cmp, base, [n for n in names if n not in taken and n not in tried], ev, ft, info, settings,
+                           est, rnd, measured_contact, progress, 8000, "alias_check")
 
 
 def champion(cmp: Comparison, base: Base, passing: list, best: Candidate, settings) -> tuple:
