@@ -1066,3 +1066,36 @@ def test_a_comparison_keeps_what_it_reads_off_a_models_replays_while_its_part_st
     part.whitener = object()
     assert cmp.memoised("k", part, ov, eff, compute) == 3
     assert len(calls) == 3
+
+
+def _moving_problem(offset: float):
+    """:math:`r = c\\,\\mathrm{sign}(x)\\,x^2`, :math:`x = a - 3`, plus an alternating misfit of
+    size ``offset`` no parameter explains: each Gauss-Newton step halves :math:`x`, removing 15/16
+    of the cost's excess over the floor when the misfit is 0."""
+    N = 60
+    col = np.linspace(-30.0, 30.0, N)
+    off = np.where(np.arange(N) % 2 == 0, offset, -offset)
+
+    def evaluate(theta, seed):
+        x = theta[0] - 3.0
+        return col * np.sign(x) * x * x + off + 0.2 * np.random.default_rng(seed).standard_normal(N)
+    return Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.5]), np.array([-5.0]), np.array([10.0]),
+                   evaluate, start=np.array([0.0]))
+
+
+def test_a_fit_still_on_its_way_goes_on_and_one_beside_a_misfit_does_not():
+    """Limited to 2 iterations, a fit whose steps each remove most of its cost's excess and still
+    ask for many posterior standard deviations stops short, far from its optimum; with
+    ``moving_iter`` 4 it goes on to within 0.2 of it, at a cost near the floor. Beside a misfit
+    that dominates the cost, the same steps remove little of the excess: it stops where it
+    would have without ``moving_iter``."""
+    cut = map_fit(_moving_problem(0.0), EstimateSettings(max_iter=2, short_iter=0, moving_iter=0))
+    on = map_fit(_moving_problem(0.0), EstimateSettings(max_iter=2, short_iter=0, moving_iter=4))
+    assert cut.stopped_short and abs(cut.theta[0] - 3.0) > 0.8
+    its = [h for h in on.history if "step_norm" in h]
+    assert 2 < len(its) <= 6 and not on.stopped_short
+    assert abs(on.theta[0] - 3.0) < 0.2 and its[-1]["chi2"] < 0.01 * its[1]["chi2"]
+    beside = [map_fit(_moving_problem(300.0), EstimateSettings(max_iter=2, short_iter=0, moving_iter=m))
+              for m in (0, 4)]
+    assert beside[0].theta[0] == beside[1].theta[0] and beside[0].evaluations == beside[1].evaluations
+    assert len([h for h in beside[1].history if "step_norm" in h]) == 2

@@ -131,6 +131,13 @@ class EstimateSettings:
         widen its steps, ``max_refresh``; ``short_iter`` 0: neither, as for a candidate's fit, a
         screen on a base that misfits by design); a fit that ends unconverged with it still
         holding has *stopped short* (:attr:`MapFit.stopped_short`), and says so.
+    moving_step, moving_iter : float, int
+        A fit whose last step asked for more than ``moving_step`` posterior standard deviations
+        per parameter, after a step that removed more than half of its cost's excess over the
+        floor, is still on its way: it goes on for up to ``moving_iter`` iterations beyond
+        its limit while that holds (0: never, the default; a candidate's fit, limited to a few
+        iterations as a screen, is otherwise judged where it happens to stop, far from its own
+        optimum).
     progress_window : int
         The fit stops when the cost at its centre has not fallen by more than the anchors' noise
         (:func:`_margin`, two standard deviations of the difference of two anchors at that cost)
@@ -198,6 +205,8 @@ class EstimateSettings:
     max_refresh: int = 2
     design_seed: int = 0
     progress_window: int = 0
+    moving_step: float = 4.0
+    moving_iter: int = 0
     common_seeds: int = 0
     common_seeds_evaluations: int = 200
 
@@ -862,9 +871,16 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         # model noise (the mean of len(C) runs)
         return len(a) * (1.0 + float(np.mean(rhos)) / len(C))
 
-    for it in range(s.max_iter + s.short_iter):
+    for it in range(s.max_iter + s.short_iter + s.moving_iter):
         short = s.short_iter > 0 and _far_above(float(a @ a), len(a), floor(), s.short_alpha)
         limit = s.max_iter + (s.short_iter if short else 0)
+        its = [h for h in history if "step_norm" in h]
+        # on its way: the last step asked for far more than the posterior spread and the one
+        # before it removed most of the cost's excess over the floor (a fit beside a larger
+        # misfit asks for large steps too, but they do not lower its cost)
+        if s.moving_iter > 0 and len(its) >= 2 and its[-1]["step_norm"] > s.moving_step and \
+                its[-2]["chi2"] - its[-1]["chi2"] > 0.5 * (its[-2]["chi2"] - its[-2]["floor"]):
+            limit = max(limit, min(it + 1, s.max_iter + (s.short_iter if short else 0) + s.moving_iter))
         if it >= limit:
             break
         B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, float(np.mean(rhos)))

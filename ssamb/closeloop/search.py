@@ -328,7 +328,8 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
         models.append(m)
 
     # a candidate's fit is a screen on a base that misfits by design: no iterations beyond its own
-    cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations), short_iter=0)
+    cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations), short_iter=0,
+                                   moving_iter=settings.candidate_iterations)
     cand = fit_candidate(cmp, base, models, cand_est, seed0, step_rel=settings.calibration_step_rel,
                          log=(lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
     _candidate_alias(cmp, base, cand, settings, (lambda m: _log(progress, f"    {'+'.join(names)} " + m)))
