@@ -135,9 +135,9 @@ class EstimateSettings:
         A fit whose last step asked for more than ``moving_step`` posterior standard deviations
         per parameter, after a step that removed more than half of its cost's excess over the
         floor, is still on its way: it goes on for up to ``moving_iter`` iterations beyond
-        its limit while that holds (0: never, the default; a candidate's fit, limited to a few
+        its limit while that holds (0: never, the default). A candidate's fit, limited to a few
         iterations as a screen, is otherwise judged where it happens to stop, far from its own
-        optimum).
+        optimum: the search gives it ``closeloop.candidate_iterations`` more.
     progress_window : int
         The fit stops when the cost at its centre has not fallen by more than the anchors' noise
         (:func:`_margin`, two standard deviations of the difference of two anchors at that cost)
