@@ -22,8 +22,9 @@ NAME = "cross_coupling"
 REQUIRED = ("coefficient",)
 OPTIONAL = ()
 SIGNATURE = "residual in one axis coherent with the other axis' excitation; x current offset from gravity"
-# at rest the y fluxes are constant: the coupled x force is c times the gravity-loaded y force,
-# a constant x force that a static load gives alike
+# at rest the coupled forces' means are a constant (F_x, F_y) that a static load gives alike in
+# every channel's mean (tests/test_device.py); the y loop's noise coupled into x raises the x
+# noise spectrum too, which the AMB's features do not compare
 ALIASES = ("static_load",)
 SEARCHABLE = True
 NEEDS_HINT = False
