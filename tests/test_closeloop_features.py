@@ -75,6 +75,15 @@ def test_bands_whitened_difference_has_unit_variance_and_sees_a_louder_loop():
     assert chis[1] > 3.0, chis
 
 
+def test_a_layout_reads_bands_and_device_lines_together():
+    """A device with views compared in bands and views compared at its own lines gets both."""
+    fr = make_frame(FS, 0, 8192, {}, None, None)
+    lay = make_layout(fr, {}, views=("y", "u"), band_views=("y",), exclude_hz=(123.4,), dl_views=("u",),
+                      dl_floor=(0.0,))
+    assert lay.bands and lay.band_views == ("y",)
+    assert lay.dl_views == ("u",) and lay.dl_hz == (123.4,)
+
+
 def test_windows_see_a_drift_that_the_dc_does_not():
     """A ramp of zero mean in the data: the window features' whitened chi-square is far above its
     entries, while noise alone gives about one per entry."""

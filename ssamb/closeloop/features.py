@@ -202,8 +202,8 @@ def make_layout(frame: Frame, signals: dict, lines_hz=(), views=(), max_bins: in
         bnper = _welch_length(frame.n)
         bands = band_plan(frame, signals, bnper, exclude_hz)
         if bands:
-            extra = {"band_views": band_views, "bands": tuple(bands), "band_nper": bnper,
-                     "band_floor": tuple(2.0 * fl[v] ** 2 / frame.fs_hz for v in band_views)}
+            extra.update(band_views=band_views, bands=tuple(bands), band_nper=bnper,
+                         band_floor=tuple(2.0 * fl[v] ** 2 / frame.fs_hz for v in band_views))
     if frame.periodic:
         kb = np.unique(np.concatenate([np.asarray(v, int) for v in frame.excited.values()])) if frame.excited else \
             np.zeros(0, int)
