@@ -24,10 +24,13 @@ several "standard deviations". The same statistic per group
 of entries (a view's DC, windows, bands, lines: :meth:`~ssamb.closeloop.comparison.Comparison.named_groups`),
 ``z_group`` the largest, tested at ``alpha_accept`` over the groups (Bonferroni): the
 predictions' noise in all :math:`N` entries can hide an improvement in a few (a load in the DC of
-the currents). The share of the residual excess over the noise (:math:`\chi^2_g - n_g`) that the
-candidate removes is averaged over the groups that stood clearly above the noise
-(:math:`\chi^2_g >` ``above_noise`` :math:`n_g`, or a chi-square significant at ``alpha_noise``
-over the groups: an excess can be significant and much smaller than its entries);
+the currents). The share of the residual excess over the noise that the candidate removes,
+:math:`\sum_g (\chi^2_{0,g} - \chi^2_{1,g}) / \sum_g (\chi^2_{0,g} - n_g)`, is taken over the
+groups that stood clearly above the noise (:math:`\chi^2_g >` ``above_noise`` :math:`n_g`, or a
+chi-square significant at ``alpha_noise`` over the groups: an excess can be significant and
+much smaller than its entries): a ratio of sums, not a mean of the groups' ratios, whose
+denominators near the noise would let the predictions' noise in a group of small excess
+outvote the group that holds the excess;
 a view is made worse when its :math:`\chi^2` grows by more than ``worse_sigma`` standard
 deviations of the difference of two noisy predictions' :math:`\chi^2`. With :math:`\bar r` the
 view's expected residual and :math:`e_0, e_1` the predictions' unit-variance noise,
@@ -219,7 +222,7 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
     dsse = float(r0 @ r0 - r1 @ r1)
     z = improvement_z(cmp, cmp.hold, base, pred, overrides, effects, (r0, r1), jk)
     c0, c1 = chi2_views(cmp, cmp.hold, r0), chi2_views(cmp, cmp.hold, r1)
-    per_view, fracs, worse = {}, [], []
+    per_view, excess, worse = {}, [0.0, 0.0], []
     for v in c0:
         (x0, n), (x1, _) = c0[v], c1[v]
         frac = (x0 - x1) / (x0 - n) if x0 > n else 0.0
@@ -238,11 +241,12 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
         zg[name] = (x0 - x1) / math.sqrt(vg) if vg > 0 else 0.0
         per_group[name] = {"chi2_before": x0, "chi2_after": x1, "n": n, "z": zg[name]}
         if x0 > settings.above_noise * n or stats.chi2.sf(x0, n) < settings.alpha_noise / len(groups):
-            fracs.append((x0 - x1) / (x0 - n))
+            excess[0] += x0 - x1
+            excess[1] += x0 - n
     best = max(zg, key=zg.get) if zg else None
     f0, f1 = _scaled(cmp, cmp.fit, base, pred, overrides, effects)
     dbic = float(f1 @ f1 - f0 @ f0 + n_params * math.log(len(f0)))
-    return {"z": z, "delta_chi2": dsse, "explained": float(np.mean(fracs)) if fracs else 0.0,
+    return {"z": z, "delta_chi2": dsse, "explained": excess[0] / excess[1] if excess[1] > 0 else 0.0,
             "z_group": zg.get(best, 0.0) if best else 0.0, "group": best, "n_groups": len(groups),
             "per_group": per_group,
             "views_worse": worse, "per_view": per_view, "delta_bic": dbic,
