@@ -1099,3 +1099,18 @@ def test_a_fit_still_on_its_way_goes_on_and_one_beside_a_misfit_does_not():
               for m in (0, 4)]
     assert beside[0].theta[0] == beside[1].theta[0] and beside[0].evaluations == beside[1].evaluations
     assert len([h for h in beside[1].history if "step_norm" in h]) == 2
+
+
+def test_the_share_of_the_excess_is_a_ratio_of_sums():
+    """The share a model removes of the excess over the noise: all of it, half of two groups'
+    alike, none without excess; a group just above the noise that the model's noise makes worse
+    by 22 units moves the share of a 1904-unit excess removed whole by 2 % (its own share, -114 %,
+    would take a mean of the groups' shares to -7 %)."""
+    from ssamb.closeloop.fit import excess_share
+
+    assert excess_share([(101.0, 1.0, 1)]) == pytest.approx(1.0)
+    assert excess_share([(60.0, 40.0, 20), (220.0, 120.0, 20)]) == pytest.approx(0.5)
+    assert excess_share([]) == 0.0
+    groups = [(1905.4, 0.2, 1), (35.6, 57.9, 16)]
+    assert excess_share(groups) == pytest.approx((1905.2 - 22.3) / (1904.4 + 19.6))
+    assert np.mean([(x0 - x1) / (x0 - n) for x0, x1, n in groups]) < 0

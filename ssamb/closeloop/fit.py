@@ -52,7 +52,7 @@ from .comparison import Comparison, Part
 from .estimate import EstimateSettings, MapFit, Problem, map_fit
 from .models import EffectModel, combine
 
-__all__ = ["Base", "Candidate", "fit_candidate", "holdout_score", "improvement_z", "chi2_views", "size_mask"]
+__all__ = ["Base", "Candidate", "excess_share", "fit_candidate", "holdout_score", "improvement_z", "chi2_views", "size_mask"]
 
 
 @dataclass
@@ -211,6 +211,22 @@ def improvement_z(cmp: Comparison, part: Part, base: Base, pred: dict, overrides
     return float(r0 @ r0 - r1 @ r1) / math.sqrt(v) if v > 0 else 0.0
 
 
+def excess_share(groups) -> float:
+    r"""The share of the residual excess over the noise that a model removes, over ``groups`` of
+    ``(chi2_before, chi2_after, n)``: :math:`\sum_g (\chi^2_{0,g} - \chi^2_{1,g}) / \sum_g
+    (\chi^2_{0,g} - n_g)` (0 without excess). A ratio of sums: a group whose excess is near zero
+    moves it by what the model changes there, not by that change over its own small excess.
+
+    Examples
+    --------
+    >>> excess_share([(1905.4, 0.2, 1), (35.6, 57.9, 16)])    # doctest: +ELLIPSIS
+    0.978...
+    """
+    removed = sum(x0 - x1 for x0, x1, _ in groups)
+    excess = sum(x0 - n for x0, _, n in groups)
+    return float(removed / excess) if excess > 0 else 0.0
+
+
 def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effects: list, n_params: int,
                   settings) -> dict:
     """Held-out comparison of a candidate (``overrides``, ``effects``, its prediction ``pred``)
@@ -222,7 +238,7 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
     dsse = float(r0 @ r0 - r1 @ r1)
     z = improvement_z(cmp, cmp.hold, base, pred, overrides, effects, (r0, r1), jk)
     c0, c1 = chi2_views(cmp, cmp.hold, r0), chi2_views(cmp, cmp.hold, r1)
-    per_view, excess, worse = {}, [0.0, 0.0], []
+    per_view, counted, worse = {}, [], []
     for v in c0:
         (x0, n), (x1, _) = c0[v], c1[v]
         frac = (x0 - x1) / (x0 - n) if x0 > n else 0.0
@@ -241,12 +257,11 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
         zg[name] = (x0 - x1) / math.sqrt(vg) if vg > 0 else 0.0
         per_group[name] = {"chi2_before": x0, "chi2_after": x1, "n": n, "z": zg[name]}
         if x0 > settings.above_noise * n or stats.chi2.sf(x0, n) < settings.alpha_noise / len(groups):
-            excess[0] += x0 - x1
-            excess[1] += x0 - n
+            counted.append((x0, x1, n))
     best = max(zg, key=zg.get) if zg else None
     f0, f1 = _scaled(cmp, cmp.fit, base, pred, overrides, effects)
     dbic = float(f1 @ f1 - f0 @ f0 + n_params * math.log(len(f0)))
-    return {"z": z, "delta_chi2": dsse, "explained": excess[0] / excess[1] if excess[1] > 0 else 0.0,
+    return {"z": z, "delta_chi2": dsse, "explained": excess_share(counted),
             "z_group": zg.get(best, 0.0) if best else 0.0, "group": best, "n_groups": len(groups),
             "per_group": per_group,
             "views_worse": worse, "per_view": per_view, "delta_bic": dbic,
