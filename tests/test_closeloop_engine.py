@@ -1114,3 +1114,13 @@ def test_the_share_of_the_excess_is_a_ratio_of_sums():
     groups = [(1905.4, 0.2, 1), (35.6, 57.9, 16)]
     assert excess_share(groups) == pytest.approx((1905.2 - 22.3) / (1904.4 + 19.6))
     assert np.mean([(x0 - x1) / (x0 - n) for x0, x1, n in groups]) < 0
+
+
+def test_the_mean_share_gives_every_group_a_vote():
+    """As a mean of the groups' own shares, a model that removes one group's excess whole and
+    nothing of three others explains a quarter; as a ratio of sums, what that group holds."""
+    from ssamb.closeloop.fit import excess_share
+
+    groups = [(1000.0, 0.0, 0)] + [(50.0, 50.0, 10)] * 3
+    assert excess_share(groups, "mean") == pytest.approx(0.25)
+    assert excess_share(groups, "sum") == pytest.approx(1000.0 / 1120.0)

@@ -52,7 +52,8 @@ from .comparison import Comparison, Part
 from .estimate import EstimateSettings, MapFit, Problem, map_fit
 from .models import EffectModel, combine
 
-__all__ = ["Base", "Candidate", "excess_share", "fit_candidate", "holdout_score", "improvement_z", "chi2_views", "size_mask"]
+__all__ = ["Base", "Candidate", "excess_share", "fit_candidate", "holdout_score", "improvement_z", "chi2_views",
+           "size_mask"]
 
 
 @dataclass
@@ -211,17 +212,23 @@ def improvement_z(cmp: Comparison, part: Part, base: Base, pred: dict, overrides
     return float(r0 @ r0 - r1 @ r1) / math.sqrt(v) if v > 0 else 0.0
 
 
-def excess_share(groups) -> float:
+def excess_share(groups, how: str = "sum") -> float:
     r"""The share of the residual excess over the noise that a model removes, over ``groups`` of
-    ``(chi2_before, chi2_after, n)``: :math:`\sum_g (\chi^2_{0,g} - \chi^2_{1,g}) / \sum_g
-    (\chi^2_{0,g} - n_g)` (0 without excess). A ratio of sums: a group whose excess is near zero
-    moves it by what the model changes there, not by that change over its own small excess.
+    ``(chi2_before, chi2_after, n)`` (0 without excess).
+
+    ``how="sum"``: :math:`\sum_g (\chi^2_{0,g} - \chi^2_{1,g}) / \sum_g (\chi^2_{0,g} - n_g)`,
+    a ratio of sums: a group whose excess is near zero moves it by what the model changes there,
+    not by that change over its own small excess. ``how="mean"``: the mean over the groups of
+    :math:`(\chi^2_{0,g} - \chi^2_{1,g}) / (\chi^2_{0,g} - n_g)`: every group has one vote, and
+    a model that removes the excess of one group alone explains at most its share of them.
 
     Examples
     --------
     >>> excess_share([(1905.4, 0.2, 1), (35.6, 57.9, 16)])    # doctest: +ELLIPSIS
     0.978...
     """
+    if how == "mean":
+        return float(np.mean([(x0 - x1) / (x0 - n) for x0, x1, n in groups])) if groups else 0.0
     removed = sum(x0 - x1 for x0, x1, _ in groups)
     excess = sum(x0 - n for x0, _, n in groups)
     return float(removed / excess) if excess > 0 else 0.0
@@ -261,7 +268,7 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
     best = max(zg, key=zg.get) if zg else None
     f0, f1 = _scaled(cmp, cmp.fit, base, pred, overrides, effects)
     dbic = float(f1 @ f1 - f0 @ f0 + n_params * math.log(len(f0)))
-    return {"z": z, "delta_chi2": dsse, "explained": excess_share(counted),
+    return {"z": z, "delta_chi2": dsse, "explained": excess_share(counted, getattr(settings, "excess_share", "sum")),
             "z_group": zg.get(best, 0.0) if best else 0.0, "group": best, "n_groups": len(groups),
             "per_group": per_group,
             "views_worse": worse, "per_view": per_view, "delta_bic": dbic,

@@ -138,6 +138,12 @@ class Settings:
         Dead-time signature: the common-mode shifts of the two axes agree within this factor.
     above_noise : float
         A view stands clearly above the noise when its chi-square is this many times its entries.
+    excess_share : str
+        How the share of the held-out excess a candidate explains is taken over the groups clearly
+        above the noise (:func:`ssamb.closeloop.fit.excess_share`): ``"sum"``, the excess removed
+        over the excess (a group whose excess is near zero cannot swing it), or ``"mean"``, the
+        mean of the groups' own shares (every group above the noise has one vote: a candidate
+        must explain more than the group with the most excess).
     worse_sigma : float
         A candidate makes a view worse when its chi-square grows by more than this many standard
         deviations of the difference of two noisy predictions' chi-square.
@@ -188,6 +194,7 @@ class Settings:
     ratio_path_se_factor: float = 3.0
     deadtime_ratio_max: float = 3.0
     above_noise: float = 2.0
+    excess_share: str = "sum"
     worse_sigma: float = 3.0
     contact_fraction: float = 0.95
     device_line_relative: float = 0.02
