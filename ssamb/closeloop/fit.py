@@ -24,13 +24,11 @@ several "standard deviations". The same statistic per group
 of entries (a view's DC, windows, bands, lines: :meth:`~ssamb.closeloop.comparison.Comparison.named_groups`),
 ``z_group`` the largest, tested at ``alpha_accept`` over the groups (Bonferroni): the
 predictions' noise in all :math:`N` entries can hide an improvement in a few (a load in the DC of
-the currents). The share of the residual excess over the noise that the candidate removes,
-:math:`\sum_g (\chi^2_{0,g} - \chi^2_{1,g}) / \sum_g (\chi^2_{0,g} - n_g)`, is taken over the
-groups that stood clearly above the noise (:math:`\chi^2_g >` ``above_noise`` :math:`n_g`, or a
-chi-square significant at ``alpha_noise`` over the groups: an excess can be significant and
-much smaller than its entries): a ratio of sums, not a mean of the groups' ratios, whose
-denominators near the noise would let the predictions' noise in a group of small excess
-outvote the group that holds the excess;
+the currents). The share of the residual excess over the noise that the candidate removes is
+taken over the groups that stood clearly above the noise (:math:`\chi^2_g >` ``above_noise``
+:math:`n_g`, or a chi-square significant at ``alpha_noise`` over the groups: an excess can be
+significant and much smaller than its entries), as a ratio of sums or as the mean of the
+groups' own shares (``excess_share``, :func:`excess_share`);
 a view is made worse when its :math:`\chi^2` grows by more than ``worse_sigma`` standard
 deviations of the difference of two noisy predictions' :math:`\chi^2`. With :math:`\bar r` the
 view's expected residual and :math:`e_0, e_1` the predictions' unit-variance noise,
