@@ -1070,8 +1070,9 @@ def test_a_comparison_keeps_what_it_reads_off_a_models_replays_while_its_part_st
 
 def _moving_problem(offset: float):
     """:math:`r = c\\,\\mathrm{sign}(x)\\,x^2`, :math:`x = a - 3`, plus an alternating misfit of
-    size ``offset`` no parameter explains: each Gauss-Newton step halves :math:`x`, removing 15/16
-    of the cost's excess over the floor when the misfit is 0."""
+    size ``offset`` no parameter explains. A Gauss-Newton step halves :math:`x` (removing 15/16 of
+    the cost's excess over the floor when the misfit is 0) once the trust region, which limits the
+    first steps from the start at :math:`x = -3`, allows it."""
     N = 60
     col = np.linspace(-30.0, 30.0, N)
     off = np.where(np.arange(N) % 2 == 0, offset, -offset)

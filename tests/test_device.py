@@ -200,7 +200,7 @@ def _at_rest(cfg: dict, effects: list) -> dict:
     res = simulate(cfg, duration_s=0.3, excitation={"kind": "none"}, start="levitated", effects=effects,
                    seed=7, progress=False)
     return {c: np.asarray(res.data[c], float) for c in ("x_meas", "y_meas", "y_ss", "i_xpos", "i_xneg", "i_ypos",
-                                                        "i_yneg", "u_x", "u_y")}
+                                                        "i_yneg", "u_x", "u_y", "fs_hz")}
 
 
 def _mean_se(x: np.ndarray, k: int = 10) -> tuple[float, float]:
@@ -230,12 +230,13 @@ def test_at_rest_a_cross_coupling_has_the_means_of_a_static_load_and_its_own_noi
         unit = _at_rest(cfg, [{"name": "static_load", "fx_n": 5.0 * (ax == "x"), "fy_n": 5.0 * (ax == "y")}])
         f_n[ax] = 5.0 * (d[ax](cc) - d[ax](none)) / (d[ax](unit) - d[ax](none))
     load = _at_rest(cfg, [{"name": "static_load", "fx_n": f_n["x"], "fy_n": f_n["y"]}])
+    fs_hz = float(cc.pop("fs_hz"))
     for c in cc:
         (m1, s1), (m2, s2) = _mean_se(cc[c]), _mean_se(load[c])
         assert abs(m1 - m2) < 3 * math.hypot(s1, s2), (c, m1, m2, s1, s2)
     (m1, s1), (m0, s0) = _mean_se(cc["i_xpos"]), _mean_se(none["i_xpos"])
     assert abs(m1 - m0) > 100 * math.hypot(s1, s0)
-    f, p_cc = signal.welch(cc["x_meas"], 83300.0, nperseg=4096)
-    _, p_load = signal.welch(load["x_meas"], 83300.0, nperseg=4096)
+    f, p_cc = signal.welch(cc["x_meas"], fs_hz, nperseg=4096)
+    _, p_load = signal.welch(load["x_meas"], fs_hz, nperseg=4096)
     band = (f >= 40.0) & (f <= 500.0)
     assert p_cc[band].mean() > 3.0 * p_load[band].mean()

@@ -878,10 +878,9 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         # on its way: the last step asked for far more than the posterior spread and the one
         # before it removed most of the cost's excess over the floor (a fit beside a larger
         # misfit asks for large steps too, but they do not lower its cost)
-        if s.moving_iter > 0 and len(its) >= 2 and its[-1]["step_norm"] > s.moving_step and \
-                its[-2]["chi2"] - its[-1]["chi2"] > 0.5 * (its[-2]["chi2"] - its[-2]["floor"]):
-            limit = max(limit, min(it + 1, s.max_iter + (s.short_iter if short else 0) + s.moving_iter))
-        if it >= limit:
+        moving = len(its) >= 2 and its[-1]["step_norm"] > s.moving_step and \
+            its[-2]["chi2"] - its[-1]["chi2"] > 0.5 * (its[-2]["chi2"] - its[-2]["floor"])
+        if it >= limit + (s.moving_iter if moving else 0):
             break
         B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, float(np.mean(rhos)))
         info, keep, pending = _information(B, noise, _scale(prob), s, prob.prior_sd)
