@@ -166,6 +166,13 @@ class EffectModel:
         one axis at a time). The final model's spread over those neither part of the record
         rejects widens its reported standard errors (:func:`ssamb.closeloop.search._alias_spread`):
         a whole number of samples that only the phase at low lines fixes can be off by more than one.
+    restart : callable or None
+        ``(theta, hints) -> theta or None``: where to fit again when the fitted effect leaves its
+        own signature in the residual (``hints``: the evidence the effect's module reads in that
+        residual): a sensor delay's remaining phase slope added to the fitted delay. A local fit
+        cannot cross the kinks of a delay's cost (:attr:`mirrors`), and one that ended on the wrong
+        side of a kink leaves a phase slope the sensor path's ratio measures directly
+        (:func:`ssamb.closeloop.search._restarted`).
     """
 
     name: str
@@ -181,6 +188,7 @@ class EffectModel:
     mirrors: Callable | None = None
     aliases: Callable | None = None
     comb: Callable | None = None
+    restart: Callable | None = None
 
 
 class EffectModule(Protocol):

@@ -1125,3 +1125,52 @@ def test_the_mean_share_gives_every_group_a_vote():
     groups = [(1000.0, 0.0, 0)] + [(50.0, 50.0, 10)] * 3
     assert excess_share(groups, "mean") == pytest.approx(0.25)
     assert excess_share(groups, "sum") == pytest.approx(1000.0 / 1120.0)
+
+
+def test_a_delay_restarts_from_the_slope_its_residual_still_shows():
+    """A fitted (x, y) delay of (17, 30.7) us whose residual still shows 13.9 us on x (significant)
+    and 2 us on y (not significant) restarts at (30.9, 30.7) us; a residual slope that would give a
+    negative delay restarts at zero; no significant axis: no restart."""
+    from ssamb.sim.effects.sensor_delay import _restart
+
+    th = np.array([17e-6, 30.7e-6])
+    out = _restart(th, {"axes": ["x"], "delay_x": 13.9e-6, "delay_y": 2e-6}, axes=("x", "y"))
+    assert out == pytest.approx([30.9e-6, 30.7e-6])
+    assert _restart(th, {"axes": ["y"], "delay_y": -40e-6}, axes=("x", "y")) == pytest.approx([17e-6, 0.0])
+    assert _restart(th, {"axes": [], "delay_x": 13.9e-6}, axes=("x", "y")) is None
+
+
+def test_a_gain_restarts_from_the_ratio_its_residual_still_shows():
+    """A fitted x gain of 0.9 (parameter -0.1) whose residual still shows a ratio of 0.95 restarts
+    at 0.855 (parameter -0.145): gains multiply."""
+    from ssamb.sim.effects.sensor_gain import _restart
+
+    out = _restart(np.array([-0.1]), {"axes": ["x"], "gain_x": 0.95}, axes=("x",))
+    assert out == pytest.approx([0.9 * 0.95 - 1.0])
+    assert _restart(np.array([-0.1]), {"axes": ["y"], "gain_y": 0.95}, axes=("x",)) is None
+
+
+@pytest.mark.parametrize("z, left_fit, left_restart, taken", [
+    (5.0, 10.0, 100.0, True),      # the fitting part prefers the restart significantly
+    (-5.0, 100.0, 1.0, False),     # ... or the fit
+    (1.0, 133.0, 4.0, True),       # a tie on the fitting part: the one leaving less of its signature
+    (-1.0, 4.0, 133.0, False),
+])
+def test_a_restart_is_preferred_by_the_fitting_part_then_by_its_signature(monkeypatch, z, left_fit, left_restart,
+                                                                           taken):
+    """:func:`ssamb.closeloop.search._preferred`: the fitting part's improvement z of the restart
+    over the fit decides beyond the acceptance level; within it, the smaller sum of the effects'
+    claim statistics after their fits."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search
+
+    monkeypatch.setattr(search, "improvement_z", lambda *a, **k: z)
+    fit = SimpleNamespace(names=("sensor_delay",), score={"claims": {"sensor_delay": (15.9, left_fit)}},
+                          overrides={}, effects=[], pred={})
+    alt = SimpleNamespace(names=("sensor_delay",), score={"claims": {"sensor_delay": (15.9, left_restart)}},
+                          overrides={}, effects=[], pred={})
+    base = SimpleNamespace(effects=[])
+    cmp = SimpleNamespace(fit="fit")
+    got = search._preferred(cmp, base, fit, alt, SimpleNamespace(alpha_accept=1e-3))
+    assert got is (alt if taken else fit)

@@ -444,9 +444,11 @@ def alias_sd(prob, model, fit, k: int, replays: int = 4) -> np.ndarray:
 
 
 def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateSettings, seed0: int,
-                  log=None, step_rel: float = 0.05) -> Candidate:
+                  log=None, step_rel: float = 0.05, mirror: bool = True) -> Candidate:
     """Fit ``models`` (jointly) added to ``base`` on the fitting part, with the base's free
-    parameters; predict the whole record.
+    parameters; predict the whole record. ``mirror=False``: a single effect's fit is not moved to
+    its mirrors and aliases (a deliberate start stays where the fit from it ends; its spread over
+    them still counts, :func:`alias_sd`).
 
     A fit that fails numerically (a replay that raises, a singular surrogate) returns a
     candidate rejected with the reason.
@@ -463,7 +465,8 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
             fit = _regridded(prob, model, fit, settings, k, log)
         spread = None
         if len(models) == 1 and (model.mirrors is not None or model.aliases is not None):
-            fit = _mirrored(cmp, base, model, fit, settings, seed0, step_rel, log)
+            if mirror:
+                fit = _mirrored(cmp, base, model, fit, settings, seed0, step_rel, log)
             spread = alias_sd(prob, model, fit, k)
             if log is not None and np.any(spread > 0):
                 log(f"as plausible as the fit: points {dict(zip(model.params, (2 * spread).tolist()))} away")

@@ -330,10 +330,15 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
     # a candidate's fit is a screen on a base that misfits by design: no iterations beyond its own
     cand_est = dataclasses.replace(est, max_iter=min(est.max_iter, settings.candidate_iterations), short_iter=0,
                                    moving_iter=settings.candidate_iterations)
-    cand = fit_candidate(cmp, base, models, cand_est, seed0, step_rel=settings.calibration_step_rel,
-                         log=(lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
-    _candidate_alias(cmp, base, cand, settings, (lambda m: _log(progress, f"    {'+'.join(names)} " + m)))
+    clog = (lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None
+    cand = fit_candidate(cmp, base, models, cand_est, seed0, step_rel=settings.calibration_step_rel, log=clog)
+    _candidate_alias(cmp, base, cand, settings, clog)
     _judge(cand, cmp, base, ev, ft, settings, measured_contact)
+    if any(r.startswith("the signature of ") for r in cand.reasons):
+        alt = _restarted(cmp, base, cand, cand_est, seed0 + 61, settings, clog)
+        if alt is not None:
+            _judge(alt, cmp, base, ev, ft, settings, measured_contact)
+            cand = _preferred(cmp, base, cand, alt, settings, clog)
     if settings.nested_refit and cand.passed and base.free:
         _judge_nested(cmp, base, cand, cand_est, seed0, settings,
                       (lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
@@ -375,11 +380,74 @@ def parameters_only(cmp: Comparison, base: Base, cand: Candidate, est, seed0: in
     if len(ok) < 2:
         return (ok or fits)[0]
     a, b = ok
-    sd = np.array([sp.prior_sd for sp in base.free])
-    ra, rb = _scaled(cmp, cmp.fit, Base(a.overrides, a.effects, a.pred), b.pred, b.overrides, b.effects)
-    cost_a = float(ra @ ra + np.sum((a.fit.theta[:k] / sd) ** 2))
-    cost_b = float(rb @ rb + np.sum((b.fit.theta[:k] / sd) ** 2))
+    cost_a, cost_b = _fit_objectives(cmp, base, a, b)
     return b if cost_b < cost_a else a
+
+
+def _fit_objectives(cmp: Comparison, base: Base, a: Candidate, b: Candidate) -> tuple[float, float]:
+    r"""The fitting part's objective of two fits of one problem: the scaled :math:`\chi^2`
+    (:func:`ssamb.closeloop.fit._scaled`, both residuals with the larger noise factor) plus the
+    prior term of the base's free parameters, :math:`\sum_i (\theta_i/\sigma_i)^2`. The held-out
+    part never chooses between fits."""
+    k = len(base.free)
+    sd = np.array([sp.prior_sd for sp in base.free])
+    ra, rb = _scaled(cmp, cmp.fit, Base(a.overrides, list(base.effects) + a.effects, a.pred), b.pred, b.overrides,
+                     list(base.effects) + b.effects)
+    return (float(ra @ ra + np.sum((a.fit.theta[:k] / sd) ** 2)),
+            float(rb @ rb + np.sum((b.fit.theta[:k] / sd) ** 2)))
+
+
+def _restarted(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int, settings, log=None) -> Candidate | None:
+    """The candidate fitted again from where its effects' own signatures, left in its residual,
+    point (:attr:`ssamb.device.EffectModel.restart`), or None when none points anywhere.
+
+    A fitted effect must remove its own signature (:func:`_judge`'s claim test). When it does not,
+    the local fit may have ended on the wrong side of a kink of the cost (a sensor delay a whole
+    controller sample off on one axis); the evidence of the effect in the fit's residual says by
+    how much. The refit starts there, with the calibrated parameters where the candidate's fit
+    left them, without the coarse grid and without moving to mirrors (:func:`_preferred` chooses).
+    """
+    import dataclasses
+
+    if cand.fit is None:
+        return None
+    ev_after = evidence_all(_features(cmp, cmp.fit.frame, cand.pred, settings), settings, cmp.device)
+    models, moved = [], False
+    for sl, m in zip(cand.slices(), cand.models):
+        th = np.asarray(cand.fit.theta[sl], float)
+        e = ev_after.get(m.name)
+        t = m.restart(th, e.hints) if (m.restart is not None and e is not None and e.significant) else None
+        if t is not None:
+            moved = True
+            th = np.clip(t, m.lower, m.upper)
+        models.append(dataclasses.replace(m, theta0=th, grid=()))
+    if not moved:
+        return None
+    k = cand.n_free
+    start = dataclasses.replace(base, theta_free=np.asarray(cand.fit.theta[:k], float).copy())
+    if log is not None:
+        at = dict(zip(cand.model.params, np.concatenate([m.theta0 for m in models]).tolist()))
+        log(f"its signature remains: fitted again from {at}")
+    alt = fit_candidate(cmp, start, models, est, seed0, step_rel=settings.calibration_step_rel, log=log, mirror=False)
+    return alt if alt.fit is not None else None
+
+
+def _preferred(cmp: Comparison, base: Base, cand: Candidate, alt: Candidate, settings, log=None) -> Candidate:
+    r"""Of a judged candidate and its judged restart (:func:`_restarted`), the one the fitting part
+    prefers: the restart when it fits the fitting part significantly better
+    (:func:`ssamb.closeloop.fit.improvement_z` over the candidate above the acceptance level), the
+    candidate when it fits significantly better; between fits the fitting part cannot tell apart,
+    the one that leaves less of its effects' own signatures (the sum of their claim statistics,
+    :func:`_judge`). The held-out part never chooses."""
+    z_c = float(stats.norm.isf(settings.alpha_accept))
+    z = improvement_z(cmp, cmp.fit, Base(cand.overrides, list(base.effects) + cand.effects, cand.pred), alt.pred,
+                      alt.overrides, list(base.effects) + alt.effects)
+    left = [sum(c.score.get("claims", {}).get(n, (0.0, 0.0))[1] for n in c.names) for c in (cand, alt)]
+    take = z > z_c or (z >= -z_c and left[1] < left[0])
+    if log is not None:
+        log(f"the restart against the fit: z {z:.2f} on the fitting part, its signatures left {left[1]:.3g} against "
+            f"{left[0]:.3g}: {'taken' if take else 'not taken'}")
+    return alt if take else cand
 
 
 def _judge_nested(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int, settings, log=None) -> None:

@@ -111,7 +111,22 @@ def model(hints: dict, record, st) -> EffectModel | str:
                        {"axes": axes}, _grid(th, hinted, 1.0 / float(record.fs_hz)),
                        mirrors=functools.partial(_mirrors, ts=1.0 / float(record.fs_hz)),
                        aliases=functools.partial(_aliases, ts=1.0 / float(record.fs_hz)),
-                       comb=functools.partial(_comb, ts=1.0 / float(record.fs_hz)))
+                       comb=functools.partial(_comb, ts=1.0 / float(record.fs_hz)),
+                       restart=functools.partial(_restart, axes=axes))
+
+
+def _restart(theta: np.ndarray, hints: dict, axes: tuple) -> np.ndarray | None:
+    r"""The fitted delays plus the delays their residual still shows on the axes where its
+    evidence is significant (``hints``: :func:`evidence` of the residual), :math:`\tau + \hat\tau_r`
+    (not below zero); None when no axis shows one."""
+    shown = [a for a in (hints.get("axes") or ()) if ("delay_" + a) in hints and a in axes]
+    if not shown:
+        return None
+    out = np.array(theta, float)
+    for a in shown:
+        i = axes.index(a)
+        out[i] = max(out[i] + float(hints["delay_" + a]), 0.0)
+    return out
 
 
 #: the longest delay the coarse starts try and the comb reaches (ten 12 us controller samples)

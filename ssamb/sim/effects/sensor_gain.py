@@ -13,6 +13,8 @@ offset :math:`Go`), so when the calibration gain is calibrated the effect acts o
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ...device import EffectModel
@@ -60,7 +62,21 @@ def model(hints: dict, record, st) -> EffectModel | str:
     return EffectModel(NAME, tuple(f"gain_{a}_minus_1" for a in axes), th, np.maximum(0.2 * np.abs(th), 1e-2),
                        np.full(len(axes), -0.9), np.full(len(axes), 9.0),
                        lambda t: [{"name": NAME, "axis": a, "gain": float(1.0 + v)} for a, v in zip(axes, t)],
-                       {"axes": axes})
+                       {"axes": axes}, restart=functools.partial(_restart, axes=axes))
+
+
+def _restart(theta: np.ndarray, hints: dict, axes: tuple) -> np.ndarray | None:
+    r"""The fitted gains times the gains their residual still shows on the axes where its
+    evidence is significant (``hints``: :func:`evidence` of the residual),
+    :math:`(1 + \theta) g_r - 1`; None when no axis shows one."""
+    shown = [a for a in (hints.get("axes") or ()) if ("gain_" + a) in hints and a in axes]
+    if not shown:
+        return None
+    out = np.array(theta, float)
+    for a in shown:
+        i = axes.index(a)
+        out[i] = (1.0 + out[i]) * float(hints["gain_" + a]) - 1.0
+    return out
 
 
 def report(m: EffectModel, theta, se, significant) -> list[dict]:
