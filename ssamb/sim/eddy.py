@@ -78,7 +78,8 @@ def ladder_z(f_hz, weights, taus) -> np.ndarray:
     return 1.0 + np.sum(a * s * t / (1.0 + s * t), axis=0)
 
 
-@lru_cache(maxsize=32)
+#: kept for every lamination time constant a close-the-loop fit replays (a few hundred bytes each)
+@lru_cache(maxsize=512)
 def fit_ladder(tau_s: float, order: int, f_max_hz: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Weights :math:`a_k` and time constants :math:`\\tau_k` of the ``order``-section ladder.
 

@@ -166,7 +166,9 @@ def geometry_of(par) -> dict:
 UPPER = tuple((j, k) for j in range(4) for k in range(j, 4))
 
 
-@lru_cache(maxsize=8)
+#: geometries whose tables are kept: a close-the-loop fit steps the airgap and the permeability of
+#: every model it replays, and returns to earlier ones (150 kB each)
+@lru_cache(maxsize=128)
 def _tables(key: tuple) -> np.ndarray:
     geom = dict(key[0])
     half = key[1]
