@@ -198,13 +198,25 @@ def pytest_sessionstart(session):
     """Compile the simulator once, in the controlling process, before pytest-xdist starts its
     workers: numba's on-disk cache (``ssamb/sim/__pycache__``) is then warm for the workers, the
     smoke workflow's jobs and the replay workers. On a clean clone they would otherwise start at
-    once and each compile it, several times the cost of loading it from the cache."""
+    once and each compile it, several times the cost of loading it from the cache. The rest of
+    the compiled code (the ball, mu, the linear simulation) is compiled beside it, in a process
+    of its own (tests/warm_caches.py), for the same reason; its failure fails no test here (the
+    tests of that code report it)."""
     if hasattr(session.config, "workerinput"):
         return
     from ssamb.config import load_config
     from ssamb.sim import simulate
 
-    simulate(load_config(), "multisine", duration_s=0.01, progress=False)
+    warm = subprocess.Popen([sys.executable, str(ROOT / "tests" / "warm_caches.py")], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        simulate(load_config(), "multisine", duration_s=0.01, progress=False)
+    finally:
+        try:
+            warm.wait(timeout=600)
+        except subprocess.TimeoutExpired:
+            warm.kill()
+            warm.wait()
 
 
 def _run(name: str) -> _Background:
