@@ -749,7 +749,9 @@ def _periodic(layout: Layout, x: np.ndarray, fl2: np.ndarray, factors: tuple | N
 def _welch_segments(x: np.ndarray, nper: int) -> np.ndarray:
     """Hann-windowed DFTs of half-overlapping segments: (segments, rows, bins)."""
     v = np.moveaxis(sliding_window_view(x, nper, axis=-1)[..., ::nper // 2, :], -2, 0)
-    return sfft.rfft((v - v.mean(axis=-1, keepdims=True)) * _hann(nper), axis=-1)
+    d = v - v.mean(axis=-1, keepdims=True)
+    d *= _hann(nper)                      # in place: one temporary array less
+    return sfft.rfft(d, axis=-1)
 
 
 @functools.lru_cache(maxsize=16)
