@@ -223,13 +223,19 @@ def _run(name: str) -> _Background:
     return _Background(_shared_root() / name.replace("_workdir", ""))
 
 
-def _cost_rank(item) -> tuple[int, int]:
-    """Where a test goes in the queue of the two workers: the ones marked ``slow`` first, so that
-    the session does not end on one long test while the other worker idles, and the tests that
-    read the smoke workflow last (it runs in the background meanwhile; among them the slow ones
-    first)."""
+def _cost_rank(item) -> int:
+    """Where a test goes in the queue of the two workers: 0, the costly tests (marked ``slow`` or
+    ``workflow``: simulations of seconds, Snakemake processes) that do not read the smoke
+    workflow; 1, the slow ones that read it (it has run in the background meanwhile); 2, the
+    quick tests; 3, the quick readers of the smoke workflow. The session then ends on many short
+    tests, which keep both workers busy to the end, and not on one long test (the rerun of the
+    smoke workflow's rules) that can start only when the smoke workflow is done while the other
+    worker idles beside it."""
     smoke = bool(set(getattr(item, "fixturenames", ())) & set(SMOKE_FIXTURES))
-    return int(smoke), int(item.get_closest_marker("slow") is None)
+    slow = item.get_closest_marker("slow") is not None
+    if smoke:
+        return 1 if slow else 3
+    return 0 if slow or item.get_closest_marker("workflow") is not None else 2
 
 
 def pytest_collection_modifyitems(config, items):
