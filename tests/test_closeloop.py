@@ -15,7 +15,7 @@ from ssamb.closeloop import run_closeloop
 from ssamb.closeloop.data import Record, make_split
 from ssamb.closeloop.residual import _ratio_fit
 from ssamb.closeloop.settings import Settings, settings_from_config
-from ssamb.closeloop.spectra import fit_line, find_peaks_bins, make_frame, noise_floor, white_sigma, dft
+from ssamb.closeloop.spectra import dft, find_peaks_bins, fit_line, lasts, make_frame, noise_floor, white_sigma
 from ssamb.config import load_config
 from ssamb.io import DataError, MEASURED_COLUMNS, save_npz
 from ssamb.rig import run_scenario
@@ -131,6 +131,50 @@ def test_noise_floor_and_lines(periodic):
     # with the line removed the floor is the noise (a rectangular frame leaks the line off-grid)
     S = noise_floor(fr, dft(fr, x - ln["component"]["v"]))
     assert abs(white_sigma(fr, S) / 2e-4 - 1) < 0.05
+
+
+def test_a_line_inside_a_sweeps_range_is_searched_and_a_multisines_lines_are_not():
+    """A Hann frame's line search skips the excitation's own narrow lines that last through the
+    segment (a multisine's), not a sweep's range, which it passes once: a 39.6 Hz line beside a
+    6-63 Hz linear sweep (0.75 s, the suite's draw kind) is found; a 12-30 Hz sweep, which stands
+    as narrow lines against its band's median, has its range searched and marked as passing; a
+    non-periodic multisine's lines (20 Hz apart: 15 bins) stay out of the search."""
+    rng = np.random.default_rng(3)
+    n = int(0.75 * FS)
+    t = np.arange(n) / FS
+    f0, f1 = 6.0, 63.0
+    sweep = np.sin(2 * np.pi * (f0 * t + 0.5 * (f1 - f0) / t[-1] * t ** 2))
+    fr = make_frame(FS, 0, n, {"x": sweep}, None, None)
+    band = (fr.f_hz > 10) & (fr.f_hz < 60)
+    assert fr.line_mask[band].all()
+    narrow = np.sin(2 * np.pi * (12.0 * t + 0.5 * (30.0 - 12.0) / t[-1] * t ** 2))
+    fn = make_frame(FS, 0, n, {"x": narrow}, None, None)
+    inside = (fn.f_hz > 14) & (fn.f_hz < 28)
+    assert fn.line_mask[inside].all() and fn.passing_mask[inside].all() and not fn.passing_mask[fn.f_hz > 100].any()
+    x = 2e-4 * rng.standard_normal(n) + 3e-3 * np.cos(2 * np.pi * 39.6 * t + 0.4)
+    X = dft(fr, x)
+    cl = find_peaks_bins(fr, {"v": np.abs(X) ** 2}, {"v": noise_floor(fr, X)}, 0, 500, 1e-3)
+    assert len(cl) == 1 and abs(cl[0]["f_hz"] - 39.6) < 2 * fr.df_hz
+    ms = _signal_with_lines(n, 0.0, [(20.0 * k, 1.0, 0.3 * k) for k in range(1, 11)], rng)
+    fr = make_frame(FS, 0, n, {"x": ms}, None, None)
+    on = np.array([np.argmin(np.abs(fr.f_hz - 20.0 * k)) for k in range(1, 11)])
+    assert not fr.line_mask[on].any() and not fr.passing_mask.any()
+
+
+@pytest.mark.parametrize("amplitude", [3e-4, 3e-3])
+def test_a_line_lasts_through_the_segment_and_a_transient_does_not(amplitude):
+    """:func:`ssamb.closeloop.spectra.lasts`: a 39.6 Hz sinusoid throughout 0.75 s of white noise
+    (at the detection threshold and well above it) lasts; the same frequency as a burst of 0.1 s
+    in the second quarter (a sweep passing a misplaced resonance) does not."""
+    rng = np.random.default_rng(5)
+    n = int(0.75 * FS)
+    t = np.arange(n) / FS
+    fr = make_frame(FS, 0, n, {}, None, None)
+    noise = 2e-4 * rng.standard_normal(n)
+    steady = noise + amplitude * np.cos(2 * np.pi * 39.6 * t + 0.4)
+    burst = noise + 10 * amplitude * np.cos(2 * np.pi * 39.6 * t) * ((t > 0.25) & (t < 0.35))
+    assert lasts(fr, steady, 39.6)
+    assert not lasts(fr, burst, 39.6)
 
 
 def test_ratio_fit_recovers_gain_and_delay():

@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from .spectra import (Frame, dft, find_peaks_bins, fit_line, noise_floor, offset, welch_transfer,
+from .spectra import (Frame, dft, find_peaks_bins, fit_line, lasts, noise_floor, offset, welch_transfer,
                       white_sigma)
 
 __all__ = ["Features", "compute_features", "channel_errors", "channel_noise"]
@@ -330,6 +330,10 @@ def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings,
         clusters = find_peaks_bins(frame, P, Sl, 0.0, settings.line_search_max_hz, settings.alpha_evidence,
                                    exclude_hz=np.asarray(device_lines_hz, float))
         clusters = [c for c in clusters if all(abs(c["f_hz"] - ln["f_hz"]) > 2 * frame.df_hz for ln in found)]
+        # inside the range a sweep passes once, only a line that lasts (not the sweep's transient)
+        pm = frame.passing_mask
+        clusters = [c for c in clusters if pm is None or not pm[c["bin"]]
+                    or lasts(frame, segs[max(c["views"], key=c["views"].get)], c["f_hz"])]
         if not clusters:
             break
         for c in clusters[:6]:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, signal
 
-__all__ = ["Frame", "make_frame", "dft", "noise_floor", "white_sigma", "find_peaks_bins",
+__all__ = ["Frame", "make_frame", "dft", "noise_floor", "white_sigma", "find_peaks_bins", "lasts",
            "fit_line", "offset", "welch_transfer"]
 
 
@@ -55,7 +55,12 @@ class Frame:
     line_mask : numpy.ndarray of bool
         Bins where lines the excitation lacks are searched: every bin but DC and the excited
         lines (periodic frames: unexcited grid bins included), else away from the excitation's
-        own narrow lines (a broadband excitation excludes none).
+        own narrow lines that last through the segment (a broadband excitation excludes none).
+    passing_mask : numpy.ndarray of bool or None
+        Non-periodic frames: the bins of the excitation's own narrow lines that do not last
+        through the segment (the range a sweep passes once). A line the excitation lacks is
+        searched there too, but counts only if it lasts itself (:func:`lasts`): a sweep's
+        passage through a misfit resonance leaves a transient, an unbalance spins throughout.
     excited : dict
         Per excited axis, the bin indices of the excited lines (periodic frames).
     """
@@ -72,6 +77,7 @@ class Frame:
     grid_mask: np.ndarray
     excited: dict
     line_mask: np.ndarray
+    passing_mask: np.ndarray | None = None
 
     @property
     def df_hz(self) -> float:
@@ -126,15 +132,66 @@ def make_frame(fs_hz: float, i0: int, n: int, excitation: dict, n_period: int | 
     for s in excitation.values():
         pw = np.maximum(pw, np.abs(np.fft.rfft(window * (s[i0:i0 + n] - np.mean(s[i0:i0 + n])))) ** 2)
     exc_mask = pw > 1e-4 * pw.max() if pw.max() > 0 else np.zeros(nb, bool)
-    # narrow lines of the excitation itself: 100 x above its local (banded) median
+    # narrow lines of the excitation itself: 100 x above its local (banded) median; those that do
+    # not last through the segment (a sweep's range stands as narrow against a wide band's
+    # median, but the sweep passes each frequency once) are searched, for lines that last
     exc_lines = np.zeros(nb, bool)
+    passing = np.zeros(nb, bool)
     if pw.max() > 0:
         for a, b in _bands(np.ones(nb, bool), 64, 32):
             med = np.median(pw[a:b])
             exc_lines[a:b] = (pw[a:b] > 100.0 * max(med, 1e-300)) & (pw[a:b] > 1e-8 * pw.max())
-        exc_lines = np.convolve(exc_lines.astype(float), np.ones(5), mode="same") > 0   # Hann main lobe
+        lasting = _lasting(fs_hz, i0, n, excitation, f)
+        main_lobe = np.ones(5)      # the Hann window's main lobe
+        passing = np.convolve((exc_lines & ~lasting).astype(float), main_lobe, mode="same") > 0
+        exc_lines = np.convolve((exc_lines & lasting).astype(float), main_lobe, mode="same") > 0
+        passing &= ~exc_lines
     return Frame(fs_hz, i0, n, window, float(np.sum(window ** 2)), f, False, None, ~exc_mask,
-                 exc_mask, excited, ~exc_lines)
+                 exc_mask, excited, ~exc_lines, passing)
+
+
+def _lasting(fs_hz: float, i0: int, n: int, excitation: dict, f_hz: np.ndarray, parts: int = 4,
+             share: float = 0.1) -> np.ndarray:
+    r"""Bins (of ``f_hz``) where some axis' excitation lasts through the segment ``[i0, i0 + n)``:
+    in each of ``parts`` equal parts (Hann-tapered, their coarser bins mapped to the nearest)
+    its power is at least ``share`` of its largest part's. A multisine's line lasts; a sweep
+    passes each frequency in one part, where the others hold only leakage. Below two of the
+    parts' bins they cannot tell: counted as lasting."""
+    q = n // parts
+    out = np.zeros(len(f_hz), bool)
+    if q < 8:
+        return ~out
+    w = signal.windows.hann(q, sym=False)
+    k = np.minimum(np.round(f_hz * q / fs_hz).astype(int), q // 2)
+    for s in excitation.values():
+        seg = np.asarray(s[i0:i0 + parts * q], float)
+        p = np.array([np.abs(np.fft.rfft(w * (x - np.mean(x)))) ** 2 for x in seg.reshape(parts, q)])
+        out |= (p.min(axis=0) >= share * p.max(axis=0))[k] & (p.max(axis=0)[k] > 0)
+    return out | (k < 2)
+
+
+def lasts(frame: Frame, x: np.ndarray, f_hz: float, parts: int = 4, max_ratio: float = 10.0) -> bool:
+    r"""Does a line at ``f_hz`` last through the frame's segment ``x`` (the segment's samples)?
+
+    The segment is cut into ``parts`` equal parts; in each, the power of ``x`` at ``f_hz``
+    (Hann-tapered quadrature sums) :math:`P_q`. A line that spins throughout puts about the same
+    power in every part; a transient (a sweep passing a resonance the model misplaces) puts it in
+    one. The line lasts when the largest part holds at most ``max_ratio`` times the mean of the
+    others: at the detection threshold a steady line has a signal-to-noise ratio of about 4 per
+    part, whose largest-to-others ratio stays below 10, while a transient detected in the whole
+    segment stands that far above the others' noise in its own part.
+    """
+    q = len(x) // parts
+    if q < 8:
+        return True
+    w = signal.windows.hann(q, sym=False)
+    t = (frame.i0 + np.arange(parts * q)) / frame.fs_hz
+    e = np.exp(-2j * np.pi * f_hz * t).reshape(parts, q)
+    xs = np.asarray(x[: parts * q], float).reshape(parts, q)
+    p = np.abs(np.sum(w * (xs - xs.mean(axis=1, keepdims=True)) * e, axis=1)) ** 2
+    top = int(np.argmax(p))
+    rest = float(np.mean(np.delete(p, top)))
+    return bool(p[top] <= max_ratio * rest)
 
 
 def dft(frame: Frame, x: np.ndarray) -> np.ndarray:
