@@ -82,3 +82,17 @@ def sensor_keep(axes: tuple, se: np.ndarray, significant: np.ndarray) -> list:
     (a standard error of 1e4 marks a direction the data left to its prior); else all."""
     return ([i for i in range(len(axes)) if significant[i]]
             or [i for i in range(len(axes)) if np.isfinite(se[i]) and se[i] < 1e3] or list(range(len(axes))))
+
+
+def sensor_restart(theta: np.ndarray, hints: dict, axes: tuple, key: str, combine) -> np.ndarray | None:
+    """A sensor effect's parameters moved by what its residual still shows (``hints[key + axis]``,
+    :func:`ratio_path`'s estimate on each axis where the evidence is significant): ``combine(fitted,
+    shown)`` per such axis; None when no axis shows any."""
+    shown = [a for a in (hints.get("axes") or ()) if (key + a) in hints and a in axes]
+    if not shown:
+        return None
+    out = np.array(theta, float)
+    for a in shown:
+        i = axes.index(a)
+        out[i] = combine(out[i], float(hints[key + a]))
+    return out

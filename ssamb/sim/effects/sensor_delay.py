@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from ...device import EffectModel, log10_p_upper
-from ._common import EffectError, axes_of, merge_axes, ratio_path, sensor_keep
+from ._common import EffectError, axes_of, merge_axes, ratio_path, sensor_keep, sensor_restart
 
 NAME = "sensor_delay"
 REQUIRED = ("axis", "delay_s")
@@ -119,14 +119,7 @@ def _restart(theta: np.ndarray, hints: dict, axes: tuple) -> np.ndarray | None:
     r"""The fitted delays plus the delays their residual still shows on the axes where its
     evidence is significant (``hints``: :func:`evidence` of the residual), :math:`\tau + \hat\tau_r`
     (not below zero); None when no axis shows one."""
-    shown = [a for a in (hints.get("axes") or ()) if ("delay_" + a) in hints and a in axes]
-    if not shown:
-        return None
-    out = np.array(theta, float)
-    for a in shown:
-        i = axes.index(a)
-        out[i] = max(out[i] + float(hints["delay_" + a]), 0.0)
-    return out
+    return sensor_restart(theta, hints, axes, "delay_", lambda d, r: max(d + r, 0.0))
 
 
 #: the longest delay the coarse starts try and the comb reaches (ten 12 us controller samples)

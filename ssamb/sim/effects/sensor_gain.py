@@ -18,7 +18,7 @@ import functools
 import numpy as np
 
 from ...device import EffectModel
-from ._common import EffectError, axes_of, merge_axes, sensor_keep
+from ._common import EffectError, axes_of, merge_axes, sensor_keep, sensor_restart
 from .sensor_delay import fit_axes, sensor_claim, sensor_evidence
 
 NAME = "sensor_gain"
@@ -69,14 +69,7 @@ def _restart(theta: np.ndarray, hints: dict, axes: tuple) -> np.ndarray | None:
     r"""The fitted gains times the gains their residual still shows on the axes where its
     evidence is significant (``hints``: :func:`evidence` of the residual),
     :math:`(1 + \theta) g_r - 1`; None when no axis shows one."""
-    shown = [a for a in (hints.get("axes") or ()) if ("gain_" + a) in hints and a in axes]
-    if not shown:
-        return None
-    out = np.array(theta, float)
-    for a in shown:
-        i = axes.index(a)
-        out[i] = (1.0 + out[i]) * float(hints["gain_" + a]) - 1.0
-    return out
+    return sensor_restart(theta, hints, axes, "gain_", lambda g, r: (1.0 + g) * r - 1.0)
 
 
 def report(m: EffectModel, theta, se, significant) -> list[dict]:
