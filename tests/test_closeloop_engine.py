@@ -519,6 +519,31 @@ def test_an_infeasible_start_falls_back_and_a_fit_cut_short_says_so():
     assert full.theta[0] == pytest.approx(3.0, abs=0.02)
 
 
+def test_a_candidate_starts_from_its_base_as_it_is_only_when_that_costs_clearly_less():
+    """:func:`ssamb.closeloop.fit.better_base_start`: a base parameter b (prior sd 1, mean 0) the
+    data put at 0.8 and an effect e started at 1.5. With the base at b = 0.8 the mean residual's
+    cost (4 replays) is 0.64 of prior against |c|^2 0.64 = 1.3e4 at the prior mean: the base is
+    taken, e keeps its start. Where the data barely see b (c 100 times smaller: 1.3 against the
+    base's prior cost 0.64, inside the margin 2 sqrt(12 N / 4) = 26.8 for N = 60) or do not see it
+    at all (the base at b = 3 costs its prior's 9 more), the prior-mean start stays."""
+    from ssamb.closeloop.fit import better_base_start
+
+    N = 60
+    c = np.linspace(-30.0, 30.0, N)
+    d = np.cos(np.arange(N))
+
+    def prob(scale, fallback_b):
+        def evaluate(theta, seed):
+            return scale * c * (theta[0] - 0.8) + d * (theta[1] - 2.0) + np.random.default_rng(seed).standard_normal(N)
+        return Problem(("b", "e"), np.zeros(2), np.array([1.0, np.inf]), np.array([0.1, 0.1]), np.full(2, -5.0),
+                       np.full(2, 5.0), evaluate, start=np.array([0.0, 1.5]), fallback=np.array([fallback_b, 0.0]))
+    msgs: list = []
+    assert better_base_start(prob(1.0, 0.8), 1, 4, msgs.append) == pytest.approx([0.8, 1.5])
+    assert msgs and msgs[0].startswith("starts from its base as it is")
+    assert better_base_start(prob(0.01, 0.8), 1, 4) == pytest.approx([0.0, 1.5])
+    assert better_base_start(prob(0.0, 3.0), 1, 4) == pytest.approx([0.0, 1.5])
+
+
 def test_calibration_agreement_is_a_chi_square_of_the_differences():
     """Two recordings 1.0 +- 0.1 and 1.4 +- 0.1: weighted mean 1.2, chi-square 8 on 1 degree of
     freedom; a session parameter is left out; one identified in a single recording is listed so."""

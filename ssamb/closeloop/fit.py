@@ -323,6 +323,49 @@ def _one_replay_margin(n: int, replays: int = 1) -> float:
     return 2.0 * float(np.sqrt(12.0 * n / replays))
 
 
+def better_base_start(prob, k: int, runs: int, log=None) -> np.ndarray:
+    r"""A candidate's start: its base's free parameters (the first ``k`` of ``prob``) as the
+    problem starts them (the unidentified ones at their prior mean, :class:`Base`) or as the base
+    holds them (:attr:`~ssamb.closeloop.estimate.Problem.fallback`), whichever the posterior cost
+    prefers beyond its noise; the effect's parameters at their start either way.
+
+    Both are legitimate starts of the same problem. The prior-mean start lets an effect take what
+    the unidentified parameters had absorbed; but a candidate's fit of a few iterations ends near
+    where it starts, and where that start costs far more than the base itself (parameters the
+    data do move, though not enough to count as identified beside a large misfit) it ends worse
+    than no effect at all. The cost of each is
+    :math:`\|\bar r\|^2 + \|(\theta - \theta_0)/\sigma_p\|^2`, :math:`\bar r` the mean of
+    ``runs`` replays on common seeds; the base is taken when its cost is lower by more than
+    :math:`2\sqrt{12 N / S}` (:func:`_one_replay_margin` for means of :math:`S` = ``runs``
+    replays: the margin of independent seeds, conservative with common ones).
+    """
+    start = np.clip(np.asarray(prob.start, float), prob.lower, prob.upper)
+    if prob.fallback is None:
+        return start
+    alt = start.copy()
+    alt[:k] = np.clip(np.asarray(prob.fallback, float)[:k], prob.lower[:k], prob.upper[:k])
+    if np.array_equal(alt, start):
+        return start
+    seeds = [prob.seed0 + 700 + j for j in range(runs)]
+    res = prob.batch([(t, sd) for t in (start, alt) for sd in seeds])
+    sd = np.asarray(prob.prior_sd, float)
+    lam = np.where(np.isfinite(sd), 1.0 / np.where(np.isfinite(sd), sd, 1.0) ** 2, 0.0)
+
+    def cost(t, rs):
+        if not all(np.all(np.isfinite(r)) for r in rs):
+            return np.inf
+        m = np.mean(rs, axis=0)
+        return float(m @ m + np.sum(lam * (t - prob.theta0) ** 2))
+    c0, c1 = cost(start, res[:runs]), cost(alt, res[runs:])
+    margin = _one_replay_margin(len(res[0]), runs)
+    if c1 < c0 - margin:
+        if log is not None:
+            log(f"starts from its base as it is: cost {c1:.1f} against {c0:.1f} with the unidentified parameters at "
+                f"their prior mean (margin {margin:.1f})")
+        return alt
+    return start
+
+
 def _coarse_start(prob, model, k: int) -> np.ndarray:
     r"""The start of a fit: the best of the model's coarse grid (:attr:`EffectModel.grid`, one
     replay each, with one seed shared by all) when it beats the plain start by more than two
@@ -444,11 +487,12 @@ def alias_sd(prob, model, fit, k: int, replays: int = 4) -> np.ndarray:
 
 
 def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateSettings, seed0: int,
-                  log=None, step_rel: float = 0.05, mirror: bool = True) -> Candidate:
+                  log=None, step_rel: float = 0.05, mirror: bool = True, better_start: bool = False) -> Candidate:
     """Fit ``models`` (jointly) added to ``base`` on the fitting part, with the base's free
     parameters; predict the whole record. ``mirror=False``: a single effect's fit is not moved to
     its mirrors and aliases (a deliberate start stays where the fit from it ends; its spread over
-    them still counts, :func:`alias_sd`).
+    them still counts, :func:`alias_sd`). ``better_start``: the base's free parameters start where
+    :func:`better_base_start` puts them (before a single effect's coarse grid is scored).
 
     A fit that fails numerically (a replay that raises, a singular surrogate) returns a
     candidate rejected with the reason.
@@ -458,6 +502,8 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
     prob, build = _problem(cmp, base, model, seed0, step_rel)
     k = len(base.free)
     try:
+        if better_start and k:
+            prob.start = better_base_start(prob, k, settings.centre_runs, log)
         if len(models) == 1 and model.grid:
             prob.start = _coarse_start(prob, model, k)
         fit = map_fit(prob, settings, log)

@@ -113,6 +113,13 @@ class Settings:
     candidate_iterations : int
         Gauss-Newton iterations of a candidate's fit (it starts from the calibrated model and the
         evidence's hints, close to its optimum).
+    candidate_start : str
+        Where a candidate's fit starts: ``prior`` (its base's unidentified parameters at their
+        prior mean, so that an effect may take what they had absorbed) or ``better``: that start
+        or the base as it is, whichever costs less beyond the cost's noise
+        (:attr:`ssamb.closeloop.estimate.EstimateSettings.better_start`): a fit of a few
+        iterations ends near its start, and a start far worse than the base it extends leaves
+        the candidate worse than no effect at all.
     joint_iterations : int
         Most Gauss-Newton iterations of the final joint refit (it starts from the fitted values
         and stops once converged; not capped by the estimator's ``max_iter``).
@@ -184,6 +191,7 @@ class Settings:
     conflict_z: float = 3.0
     claim_residual: float = 0.5
     candidate_iterations: int = 4
+    candidate_start: str = "prior"
     joint_iterations: int = 12
     estimate: dict = dataclasses.field(default_factory=dict)
     whirl_phase_min_deg: float = 10.0
