@@ -32,6 +32,7 @@ through :func:`get_device`.
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 from dataclasses import dataclass, field
@@ -468,13 +469,19 @@ class Device:
 def effect_modules(package: str) -> list:
     """The effect modules of a device's effect package: every module in it whose name does not
     start with an underscore, ordered by their ``ORDER`` (100 when absent) and name. Adding an
-    effect to a device is adding a module there."""
+    effect to a device is adding a module there (the package is read once per process: a replay
+    asks for the library every time it applies its effects)."""
+    return list(_effect_modules(package))
+
+
+@functools.lru_cache(maxsize=None)
+def _effect_modules(package: str) -> tuple:
     import pkgutil
 
     pkg = importlib.import_module(package)
     mods = [importlib.import_module(f"{package}.{m.name}") for m in pkgutil.iter_modules(pkg.__path__)
             if not m.name.startswith("_")]
-    return sorted(mods, key=lambda m: (getattr(m, "ORDER", 100), m.NAME))
+    return tuple(sorted(mods, key=lambda m: (getattr(m, "ORDER", 100), m.NAME)))
 
 
 #: registered devices: name -> "module:Class"

@@ -142,6 +142,7 @@ class Comparison:
     stops_infeasible: bool = False
     _nominal: dict = field(default_factory=dict, repr=False)
     _memo: dict = field(default_factory=dict, repr=False)
+    _physical: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, record: Record, split: Split, replay: Replayer, seeds, settings) -> "Comparison":
@@ -294,12 +295,18 @@ class Comparison:
         return evaluate
 
     def _unphysical(self, overrides) -> str | None:
-        """Why the model with ``overrides`` lies outside the device's physical domain (None: inside)."""
+        """Why the model with ``overrides`` lies outside the device's physical domain (None: inside);
+        the answer for one parameter set is kept (a fit replays it with several seeds)."""
         from ..config import overridden
 
         if not overrides:
             return None
-        return self.device.physical(overridden(self.replay.cfg, overrides))
+        key = tuple(sorted((k, float(v)) for k, v in overrides.items()))
+        if key not in self._physical:
+            self._physical[key] = self.device.physical(overridden(self.replay.cfg, overrides))
+            while len(self._physical) > MEMO_SIZE:
+                self._physical.pop(next(iter(self._physical)))
+        return self._physical[key]
 
     def evaluate_many(self, part: Part, build):
         """``[(theta, seed), ...] -> [residual, ...]``: :meth:`evaluator` over a batch, on the

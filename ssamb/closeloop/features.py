@@ -286,11 +286,19 @@ def band_dof(bins: np.ndarray, n_seg: int) -> float:
     :math:`(1/6)^2`, so a sum over :math:`b` bins with :math:`n_1, n_2` such pairs has
     :math:`\nu = 2 K b^2 / (b + \tfrac89 n_1 + \tfrac1{18} n_2)` (Satterthwaite).
     """
-    b = np.asarray(bins, int)
-    d = np.abs(b[:, None] - b[None, :])
-    n1, n2 = int(np.sum(d == 1)) // 2, int(np.sum(d == 2)) // 2
+    b = np.ascontiguousarray(bins, dtype=np.int64)
+    nb, n1, n2 = _neighbour_pairs(b.tobytes())
     k_eff = max(1.0, n_seg / 1.06)
-    return float(2.0 * k_eff * len(b) ** 2 / (len(b) + 8.0 / 9.0 * n1 + n2 / 18.0))
+    return float(2.0 * k_eff * nb ** 2 / (nb + 8.0 / 9.0 * n1 + n2 / 18.0))
+
+
+@functools.lru_cache(maxsize=1024)
+def _neighbour_pairs(raw: bytes) -> tuple[int, int, int]:
+    """Bins of a band (int64 bytes), and its pairs of bins one and two apart (every replay's
+    features read the same bands)."""
+    b = np.frombuffer(raw, dtype=np.int64)
+    d = np.abs(b[:, None] - b[None, :])
+    return len(b), int(np.sum(d == 1)) // 2, int(np.sum(d == 2)) // 2
 
 
 def log_bias(nu: float) -> float:

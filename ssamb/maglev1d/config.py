@@ -44,6 +44,12 @@ def _default_text() -> str:
 
 def default_config() -> dict:
     """The nominal configuration (a fresh copy)."""
+    return copy.deepcopy(_default_parsed())
+
+
+@functools.lru_cache(maxsize=1)
+def _default_parsed() -> dict:
+    """The nominal configuration, parsed once (never handed out: :func:`default_config` copies it)."""
     return yaml.safe_load(_default_text())
 
 

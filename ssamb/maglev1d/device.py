@@ -66,11 +66,23 @@ def _draws(seed: int | None, n: int, additive: bool, stream: int = REPLAY_STREAM
     ``seed=None`` (no noise; the rounding errors at their mean)."""
     if seed is None:
         return None, None
-    key = [int(seed)] if stream == RIG_STREAM else [int(seed), int(stream)]
-    noise = np.ascontiguousarray(np.random.default_rng(key).standard_normal((n, 3)).T)
-    if not additive:
-        return noise, None
-    return noise, np.ascontiguousarray(np.random.default_rng([*key, 1]).random((n, 3)).T - 0.5)
+    memo = (int(seed), int(n), bool(additive), int(stream))
+    hit = _DRAWS.pop(memo, None)
+    if hit is None:
+        key = [int(seed)] if stream == RIG_STREAM else [int(seed), int(stream)]
+        noise = np.ascontiguousarray(np.random.default_rng(key).standard_normal((n, 3)).T)
+        dither = np.ascontiguousarray(np.random.default_rng([*key, 1]).random((n, 3)).T - 0.5) if additive else None
+        hit = (noise, dither)
+    _DRAWS[memo] = hit                  # most recently used last
+    while len(_DRAWS) > _DRAWS_KEPT:
+        _DRAWS.pop(next(iter(_DRAWS)))
+    return hit
+
+
+#: the draws of recent replays (a fit replays every parameter set with the same seeds), shared
+#: between the replays that ask for them: the kernel only reads them
+_DRAWS: dict = {}
+_DRAWS_KEPT = 64
 
 
 def _chk_face(record: Record, cfg: Mapping) -> dict:
