@@ -228,7 +228,7 @@ def run_kernel(par: AMBParams, packed: np.ndarray, qtab: np.ndarray, start: str,
     """
     n = drive.shape[1]
     st, ss, z, lad, rings, ss_rings = initial_state(par, start, eq)
-    out = np.zeros((N_OUT, n))
+    out = np.empty((N_OUT, n))            # every row of every sample is written (run_chunk)
     fine = np.zeros((13, n * par.substeps if record_fine else 0))
     rip = np.zeros((3, int(n / par.fs_hz * par.f_pwm_hz) + 4 if track_ripple else 0))
     rip_n = 0
