@@ -25,7 +25,7 @@ from .. import COILS
 from ..config import ConfigError, config_hash
 from .dsp import D_REJ, trend_basis
 from .effects import apply_effects
-from .kernel import N_OUT, OUT_NAMES, run_chunk
+from .kernel import LOGGED_NAMES, N_LOGGED, N_OUT, OUT_NAMES, run_chunk
 from .normal import standard_normal
 from .params import P_CLAMP, P_CLAMP_X, P_CLAMP_Y, P_PID_ON, P_SS_GAIN, P_SS_OFF, AMBParams, amb_params
 from .statics import equilibrium, initial_state, network_tables
@@ -112,6 +112,10 @@ class SimOptions:
         (:data:`ssamb.device.REPLAY_STREAM`), so that no replay reproduces the noise of an
         experiment simulated with the same seed (a simulated rig's data are then not one of
         the model's replays, as a real rig's never are).
+    states : bool
+        False leaves the true states out of ``data`` (``x_true``, ``b_*_t``, ``duty_*``, forces,
+        velocities): the logged columns, ``contact`` and ``y_ss_raw`` only, which is all a replay
+        of measured data reads.
     """
 
     duration_s: float | None = None
@@ -131,6 +135,7 @@ class SimOptions:
     settle_s: float | None = None
     calibration_noise: bool = True
     noise_stream: int = 0
+    states: bool = True
 
 
 # ------------------------------------------------------------------------------------------
@@ -221,14 +226,16 @@ def _seed_sequence(cfg: Mapping, seed: int, exc: Mapping, key: int = 0) -> np.ra
 
 def run_kernel(par: AMBParams, packed: np.ndarray, qtab: np.ndarray, start: str, eq: dict | None,
                drive: np.ndarray, noise: np.ndarray, npi: np.ndarray, *, record_fine: bool = False,
-               progress: bool = False, desc: str = "simulate", track_ripple: bool = False):
+               progress: bool = False, desc: str = "simulate", track_ripple: bool = False, states: bool = True):
     """Run the compiled kernel over the drive arrays in 50 ms chunks (progress bar on stderr).
 
-    Returns ``(out, fine, ripple, state)``.
+    Returns ``(out, fine, ripple, state)``: ``out`` has the rows
+    :data:`~ssamb.sim.kernel.OUT_NAMES`, or with ``states=False`` the rows
+    :data:`~ssamb.sim.kernel.LOGGED_NAMES` (the true states not recorded).
     """
     n = drive.shape[1]
     st, ss, z, lad, rings, ss_rings = initial_state(par, start, eq)
-    out = np.empty((N_OUT, n))            # every row of every sample is written (run_chunk)
+    out = np.empty((N_OUT if states else N_LOGGED, n))   # every row of every sample is written (run_chunk)
     fine = np.zeros((13, n * par.substeps if record_fine else 0))
     rip = np.zeros((3, int(n / par.fs_hz * par.f_pwm_hz) + 4 if track_ripple else 0))
     rip_n = 0
@@ -283,8 +290,8 @@ def calibrate_selfsensing(par: AMBParams, packed: np.ndarray, positions_m: Itera
         drive = np.zeros((6, n))
         drive[2], drive[3] = eq["u_x"], eq["u_y"]
         noise, npi = converter_noise(par, n, sq) if sq is not None else (np.zeros((6, n)), np.zeros((4, n)))
-        out, _, _, _ = run_kernel(par, p, qtab, "levitated", eq, drive, noise, npi)
-        raws.append(out[OUT_NAMES.index("y_ss_raw"), n - average_samples:].mean())
+        out, _, _, _ = run_kernel(par, p, qtab, "levitated", eq, drive, noise, npi, states=False)
+        raws.append(out[LOGGED_NAMES.index("y_ss_raw"), n - average_samples:].mean())
     raws = np.asarray(raws)
     gain, offset = np.polyfit(raws, positions, 1)
     resid = positions - (gain * raws + offset)
@@ -498,7 +505,8 @@ def _assemble(par: AMBParams, out, fine, rip, drive, sig, run: dict, record_fine
     """Measured-data columns (recorded part only), ripple record and fine output."""
     settle, n_settle = run["settle_s"], run["n_settle"]
     sl = slice(n_settle, drive.shape[1])
-    data = {name: out[i, sl] for i, name in enumerate(OUT_NAMES)}   # views, no copies
+    names = OUT_NAMES if out.shape[0] == N_OUT else LOGGED_NAMES
+    data = {name: out[i, sl] for i, name in enumerate(names)}   # views, no copies
     data["t"] = data["t"] - settle
     data.update({k: sig[k] for k in ("r_x", "r_y", "inj_x", "inj_y")})
     data["f_ext_x_n"] = drive[4, sl]
@@ -582,7 +590,8 @@ def simulate(cfg: Mapping, experiment: str | None = None, options: SimOptions | 
     progress = dur >= 1.0 if opts.progress is None else opts.progress
     out, fine, rip, (_, ss) = run_kernel(par, packed, qtab, exp["start"], eq, drive, noise, npi,
                                    record_fine=opts.record_fine, progress=progress,
-                                   track_ripple=opts.track_ripple, desc=f"simulate {experiment or ''}".strip())
+                                   track_ripple=opts.track_ripple, desc=f"simulate {experiment or ''}".strip(),
+                                   states=opts.states)
     data, ripple, fine_d = _assemble(par, out, fine, rip, drive, sig, run, opts.record_fine)
     meta = {
         "kind": "simulation", "experiment": experiment,

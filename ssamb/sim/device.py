@@ -278,7 +278,7 @@ class AMB(Device):
 
         arrays = {k: v[:n] for k, v in record.inputs.items()}
         res = simulate(cfg, arrays=arrays, effects=effects, start=record.start, settle_s=record.settle_s,
-                       progress=False, seed=seed, calibration_noise=False, noise_stream=REPLAY_STREAM)
+                       progress=False, seed=seed, calibration_noise=False, noise_stream=REPLAY_STREAM, states=False)
         logged = apply_acquisition({c: res.data[c] for c in CHANNELS}, record.acquisition, record.fs_hz)
         return Replay({c: np.asarray(logged[c], float) for c in CHANNELS},
                       res.meta.get("delevitation_s") is not None)

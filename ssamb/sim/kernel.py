@@ -57,7 +57,7 @@ from .params import (MAX_LADDER, P_CC, P_CDELAY, P_CLAMP, P_CLAMP_X, P_CLAMP_Y, 
 # numba's on-disk cache (cache=True) is keyed on the content of this file only: after changing
 # params.py (the P_* layout) or a compiled helper imported from another module, change this
 # file too (or clear __pycache__), or stale machine code with old constants is reused.
-# cache generation: 6 (fastmath: contract only, magnetics.FASTMATH)
+# cache generation: 7 (fastmath: contract only, magnetics.FASTMATH; the logged rows only)
 
 # helpers called every sample: no numba runtime (see magnetics.NO_NRT), no allocation
 _HOT = dict(cache=True, error_model="numpy", fastmath=FASTMATH, **NO_NRT)
@@ -99,6 +99,11 @@ N_OUT = len(OUT_NAMES)
 O_T, O_XM, O_YM, O_YSS, O_I = 0, 1, 2, 3, 4
 O_UX, O_UY, O_XT, O_YT, O_B, O_D, O_CONTACT, O_FMX, O_FMY, O_YSSRAW, O_VX, O_VY = (
     8, 9, 10, 11, 12, 16, 20, 21, 22, 23, 24, 25)
+#: the rows of an output without the true states (:func:`run_chunk` with ``N_LOGGED`` rows): what
+#: the DSP logs (the first rows of :data:`OUT_NAMES`), the contact flag and the raw self-sensed position
+LOGGED_NAMES = OUT_NAMES[:O_XT] + ("contact", "y_ss_raw")
+N_LOGGED = len(LOGGED_NAMES)
+L_CONTACT, L_YSSRAW = N_LOGGED - 2, N_LOGGED - 1
 RING = 256           # delay-buffer length (samples): up to 3 ms of transport delay
 
 # ---- rows of the magnets' work array (one column per magnet), carried between the helpers --
@@ -106,7 +111,8 @@ M_F, M_DF, M_FE = 0, 1, 2    # MMF at the sample (carried through the sub-step),
 M_S1, M_S2, M_VBAR = 3, 4, 5  # sub-step integrals of the flux and its square, mean coil voltage
 M_ROWS = 6
 
-__all__ = ["OUT_NAMES", "N_OUT", "S_SIZE", "RING", "DRIVE_ROWS", "NOISE_ROWS", "run_chunk", "new_state"]
+__all__ = ["OUT_NAMES", "N_OUT", "LOGGED_NAMES", "N_LOGGED", "S_SIZE", "RING", "DRIVE_ROWS", "NOISE_ROWS", "run_chunk",
+           "new_state"]
 
 
 def new_state():
@@ -618,7 +624,8 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
     ``drive`` (rows :data:`DRIVE_ROWS`) holds the references, injections and external forces,
     ``noise`` (rows :data:`NOISE_ROWS`) the analog noise of the converters at every sample and
     ``npi`` (4 x periods) that of the amplifiers' PI samples. ``out`` (N_OUT x n) receives one
-    row per sample; ``fine`` (13 x n*substeps, or 0 columns) receives (t, four currents, four
+    row per sample (an ``out`` of N_LOGGED rows the rows :data:`LOGGED_NAMES`: the true states
+    are not recorded); ``fine`` (13 x n*substeps, or 0 columns) receives (t, four currents, four
     fluxes, four mean coil voltages over the sub-step) at every sub-step end; ``rip``
     (3 x n_periods) receives (period start, max, min) of the ypos current in every PWM period.
     """
@@ -629,6 +636,7 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
     inv_h = 1.0 / h
     axs = -math.expm1(-p[P_XS_BW] * h)
     record_fine = fine.shape[1] > 0
+    states = out.shape[0] == N_OUT
     track = rip.shape[1] > 0
     isamp = np.empty(4)
     n_turns = p[P_N]
@@ -659,21 +667,27 @@ def run_chunk(p, st, ss, z, lad, rings, ss_rings, tb, qtab, k0, k1, drive, noise
         out[O_YSS, k] = y_ctl
         for j in range(4):
             out[O_I + j, k] = isamp[j]
-            out[O_B + j, k] = st[S_PHI + j] * p[P_INV_AP]
-            out[O_D + j, k] = st[S_DUTY + j]
         out[O_UX, k] = st[S_UX]
         out[O_UY, k] = st[S_UY]
-        out[O_XT, k] = st[S_X]
-        out[O_YT, k] = st[S_Y]
         rr = math.sqrt(st[S_X] ** 2 + st[S_Y] ** 2)
-        out[O_CONTACT, k] = 1.0 if rr >= p[P_CLEAR] else 0.0
+        contact = 1.0 if rr >= p[P_CLEAR] else 0.0
         if rr >= p[P_CLEAR] and st[S_TCONTACT] < 0.0:
             st[S_TCONTACT] = t
-        out[O_FMX, k] = st[S_FMX]
-        out[O_FMY, k] = st[S_FMY]
-        out[O_YSSRAW, k] = ss[D_RAW]
-        out[O_VX, k] = st[S_VX]
-        out[O_VY, k] = st[S_VY]
+        if states:
+            for j in range(4):
+                out[O_B + j, k] = st[S_PHI + j] * p[P_INV_AP]
+                out[O_D + j, k] = st[S_DUTY + j]
+            out[O_XT, k] = st[S_X]
+            out[O_YT, k] = st[S_Y]
+            out[O_CONTACT, k] = contact
+            out[O_FMX, k] = st[S_FMX]
+            out[O_FMY, k] = st[S_FMY]
+            out[O_YSSRAW, k] = ss[D_RAW]
+            out[O_VX, k] = st[S_VX]
+            out[O_VY, k] = st[S_VY]
+        else:
+            out[L_CONTACT, k] = contact
+            out[L_YSSRAW, k] = ss[D_RAW]
         # ---------------- integrate to t_{k+1} ----------------
         for s in range(nsub):
             t_a = (k + s / nsub) * dt
