@@ -304,6 +304,20 @@ def calibrate_selfsensing(par: AMBParams, packed: np.ndarray, positions_m: Itera
     return calib
 
 
+def _equilibrium(par: AMBParams, packed: np.ndarray, qtab: np.ndarray, f_x_n: float, f_y_n: float) -> dict:
+    """:func:`equilibrium` at the origin, memoised on its inputs (a close-the-loop analysis replays
+    one model with several seeds); the arrays of the result are shared: read them, never write them."""
+    key = (repr(par), packed.tobytes(), f_x_n, f_y_n)
+    hit = _EQUILIBRIA.pop(key, None)
+    if hit is None:
+        hit = equilibrium(par, packed, qtab, f_x_n=f_x_n, f_y_n=f_y_n)
+    _EQUILIBRIA[key] = hit                  # most recently used last
+    while len(_EQUILIBRIA) > _CALIBRATIONS_KEPT:
+        _EQUILIBRIA.pop(next(iter(_EQUILIBRIA)))
+    return dict(hit)
+
+
+_EQUILIBRIA: dict = {}
 #: noise-free calibrations kept (a close-the-loop analysis replays one model with several seeds)
 _CALIBRATIONS: dict = {}
 _CALIBRATIONS_KEPT = 64
@@ -574,7 +588,7 @@ def simulate(cfg: Mapping, experiment: str | None = None, options: SimOptions | 
     noise, npi = converter_noise(par, drive.shape[1], _seed_sequence(cfg, seed, exp["excitation"], opts.noise_stream),
                                  opts.noise)
     # equilibrium for the static part of the load at t = 0 (the pre-roll settles the rest)
-    eq = equilibrium(par, packed, qtab, f_x_n=float(drive[4, 0]), f_y_n=float(drive[5, 0]))
+    eq = _equilibrium(par, packed, qtab, float(drive[4, 0]), float(drive[5, 0]))
     calib = None
     if cfg["selfsensing"]["calibrate"]:
         positions = cfg["selfsensing"]["calibration_positions_m"]
