@@ -544,6 +544,40 @@ def test_a_candidate_starts_from_its_base_as_it_is_only_when_that_costs_clearly_
     assert better_base_start(prob(0.0, 3.0), 1, 4) == pytest.approx([0.0, 1.5])
 
 
+def test_a_candidate_worse_than_no_effect_is_fitted_again_from_its_base():
+    """:func:`ssamb.closeloop.fit._rescued`: a base parameter b the data put at 0.8 (c = 300 per
+    unit: far outside its prior sd 1 of information) and an effect e = 2. Started at b = 0 (its
+    prior mean) with one iteration the fit stops short far above the base's cost with e = 0
+    (about 4 |d|^2 + N = 180); fitted again from the base as it is it ends at (0.8, 2). A fit that
+    converged is returned as it is."""
+    from ssamb.closeloop.fit import _rescued
+    from ssamb.device import EffectModel
+
+    N = 60
+    c = 10.0 * np.linspace(-30.0, 30.0, N) / 30.0
+    d = np.cos(np.arange(N))
+
+    def evaluate(theta, seed):
+        return 30.0 * c * (theta[0] - 0.8) + d * (theta[1] - 2.0) + np.random.default_rng(seed).standard_normal(N)
+
+    def prob():
+        return Problem(("b", "e"), np.zeros(2), np.array([1.0, np.inf]), np.array([0.01, 0.1]), np.full(2, -5.0),
+                       np.full(2, 5.0), evaluate, start=np.array([0.0, 0.0]), fallback=np.array([0.8, 0.0]))
+    model = EffectModel("e", ("e",), np.zeros(1), np.full(1, 0.1), np.full(1, -5.0), np.full(1, 5.0),
+                        lambda t: [], {})
+    one = EstimateSettings(max_iter=1, short_iter=0)
+    p = prob()
+    short = map_fit(p, one)
+    assert short.stopped_short and short.chi2 > 1e3
+    msgs: list = []
+    again = _rescued(p, model, short, EstimateSettings(max_iter=6, short_iter=0), 1, msgs.append)
+    assert msgs[-1].startswith("worse than no effect") and msgs[-1].endswith(": taken")
+    assert again.theta == pytest.approx([0.8, 2.0], abs=0.05)
+    p = prob()
+    done = map_fit(p, EstimateSettings(max_iter=12))
+    assert not done.stopped_short and _rescued(p, model, done, one, 1, None) is done
+
+
 def test_calibration_agreement_is_a_chi_square_of_the_differences():
     """Two recordings 1.0 +- 0.1 and 1.4 +- 0.1: weighted mean 1.2, chi-square 8 on 1 degree of
     freedom; a session parameter is left out; one identified in a single recording is listed so."""

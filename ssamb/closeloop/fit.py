@@ -323,6 +323,31 @@ def _one_replay_margin(n: int, replays: int = 1) -> float:
     return 2.0 * float(np.sqrt(12.0 * n / replays))
 
 
+def _start_cost(prob, theta: np.ndarray, runs: int) -> tuple[float, int]:
+    r"""The posterior cost at ``theta``,
+    :math:`\|\bar r\|^2 + \|(\theta - \theta_0)/\sigma_p\|^2` with :math:`\bar r` the mean of
+    ``runs`` replays on the seeds every start is scored with (infinite where a replay is
+    infeasible), and the residual's length."""
+    res = prob.batch([(theta, prob.seed0 + 700 + j) for j in range(runs)])
+    if not all(np.all(np.isfinite(r)) for r in res):
+        return np.inf, len(res[0])
+    m = np.mean(res, axis=0)
+    return float(m @ m + _prior_cost(prob, theta)), len(m)
+
+
+def _prior_cost(prob, theta: np.ndarray) -> float:
+    sd = np.asarray(prob.prior_sd, float)
+    lam = np.where(np.isfinite(sd), 1.0 / np.where(np.isfinite(sd), sd, 1.0) ** 2, 0.0)
+    return float(np.sum(lam * (np.asarray(theta, float) - prob.theta0) ** 2))
+
+
+def _as_based(prob, k: int, theta: np.ndarray) -> np.ndarray:
+    """``theta`` with the base's free parameters (its first ``k``) as the base holds them."""
+    alt = np.clip(np.asarray(theta, float), prob.lower, prob.upper).copy()
+    alt[:k] = np.clip(np.asarray(prob.fallback, float)[:k], prob.lower[:k], prob.upper[:k])
+    return alt
+
+
 def better_base_start(prob, k: int, runs: int, log=None) -> np.ndarray:
     r"""A candidate's start: its base's free parameters (the first ``k`` of ``prob``) as the
     problem starts them (the unidentified ones at their prior mean, :class:`Base`) or as the base
@@ -333,37 +358,50 @@ def better_base_start(prob, k: int, runs: int, log=None) -> np.ndarray:
     the unidentified parameters had absorbed; but a candidate's fit of a few iterations ends near
     where it starts, and where that start costs far more than the base itself (parameters the
     data do move, though not enough to count as identified beside a large misfit) it ends worse
-    than no effect at all. The cost of each is
-    :math:`\|\bar r\|^2 + \|(\theta - \theta_0)/\sigma_p\|^2`, :math:`\bar r` the mean of
-    ``runs`` replays on common seeds; the base is taken when its cost is lower by more than
+    than no effect at all. The cost of each is :func:`_start_cost` (the mean of ``runs`` replays
+    on common seeds); the base is taken when its cost is lower by more than
     :math:`2\sqrt{12 N / S}` (:func:`_one_replay_margin` for means of :math:`S` = ``runs``
     replays: the margin of independent seeds, conservative with common ones).
     """
     start = np.clip(np.asarray(prob.start, float), prob.lower, prob.upper)
     if prob.fallback is None:
         return start
-    alt = start.copy()
-    alt[:k] = np.clip(np.asarray(prob.fallback, float)[:k], prob.lower[:k], prob.upper[:k])
+    alt = _as_based(prob, k, start)
     if np.array_equal(alt, start):
         return start
-    seeds = [prob.seed0 + 700 + j for j in range(runs)]
-    res = prob.batch([(t, sd) for t in (start, alt) for sd in seeds])
-    sd = np.asarray(prob.prior_sd, float)
-    lam = np.where(np.isfinite(sd), 1.0 / np.where(np.isfinite(sd), sd, 1.0) ** 2, 0.0)
-
-    def cost(t, rs):
-        if not all(np.all(np.isfinite(r)) for r in rs):
-            return np.inf
-        m = np.mean(rs, axis=0)
-        return float(m @ m + np.sum(lam * (t - prob.theta0) ** 2))
-    c0, c1 = cost(start, res[:runs]), cost(alt, res[runs:])
-    margin = _one_replay_margin(len(res[0]), runs)
+    (c0, n), (c1, _) = _start_cost(prob, start, runs), _start_cost(prob, alt, runs)
+    margin = _one_replay_margin(n, runs)
     if c1 < c0 - margin:
         if log is not None:
             log(f"starts from its base as it is: cost {c1:.1f} against {c0:.1f} with the unidentified parameters at "
                 f"their prior mean (margin {margin:.1f})")
         return alt
     return start
+
+
+def _rescued(prob, model, fit, settings, k: int, log):
+    r"""The fit, or its refit from the base as it is (no effect, :func:`_as_based`) when the fit
+    stopped short at a cost above that point's beyond the noise: a candidate worse than no effect
+    has not been fitted (its start, the unidentified parameters at their prior mean, was too far
+    for its iterations). The refit is kept when its posterior cost is lower."""
+    if not (fit.stopped_short and k and prob.fallback is not None):
+        return fit
+    runs = settings.centre_runs
+    alt = _as_based(prob, k, np.concatenate([fit.theta[:k], model.theta0]))
+    c_fit = fit.chi2 + _prior_cost(prob, fit.theta)
+    c_alt = _start_cost(prob, alt, runs)[0]
+    margin = _one_replay_margin(fit.n, runs)
+    if not c_alt < c_fit - margin:
+        return fit
+    prob.start = alt
+    if model.grid:
+        prob.start = _coarse_start(prob, model, k)
+    refit = map_fit(prob, settings, log)
+    keep = refit.chi2 + _prior_cost(prob, refit.theta) < c_fit
+    if log is not None:
+        log(f"worse than no effect (cost {c_fit:.1f} against {c_alt:.1f}): fitted again from its base as it is, "
+            f"cost {refit.chi2 + _prior_cost(prob, refit.theta):.1f}: {'taken' if keep else 'not taken'}")
+    return refit if keep else fit
 
 
 def _coarse_start(prob, model, k: int) -> np.ndarray:
@@ -487,7 +525,8 @@ def alias_sd(prob, model, fit, k: int, replays: int = 4) -> np.ndarray:
 
 
 def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateSettings, seed0: int,
-                  log=None, step_rel: float = 0.05, mirror: bool = True, better_start: bool = False) -> Candidate:
+                  log=None, step_rel: float = 0.05, mirror: bool = True, better_start: bool = False,
+                  rescue: bool = False) -> Candidate:
     """Fit ``models`` (jointly) added to ``base`` on the fitting part, with the base's free
     parameters; predict the whole record. ``mirror=False``: a single effect's fit is not moved to
     its mirrors and aliases (a deliberate start stays where the fit from it ends; its spread over
@@ -507,6 +546,8 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
         if len(models) == 1 and model.grid:
             prob.start = _coarse_start(prob, model, k)
         fit = map_fit(prob, settings, log)
+        if rescue:
+            fit = _rescued(prob, model, fit, settings, k, log)
         if len(models) == 1:
             fit = _regridded(prob, model, fit, settings, k, log)
         spread = None

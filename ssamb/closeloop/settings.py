@@ -115,11 +115,13 @@ class Settings:
         evidence's hints, close to its optimum).
     candidate_start : str
         Where a candidate's fit starts: ``prior`` (its base's unidentified parameters at their
-        prior mean, so that an effect may take what they had absorbed) or ``better``: that start
+        prior mean, so that an effect may take what they had absorbed); ``better``: that start
         or the base as it is, whichever costs less beyond the cost's noise
-        (:attr:`ssamb.closeloop.estimate.EstimateSettings.better_start`): a fit of a few
-        iterations ends near its start, and a start far worse than the base it extends leaves
-        the candidate worse than no effect at all.
+        (:func:`ssamb.closeloop.fit.better_base_start`); ``rescue``: the prior start, and a fit
+        that stops short above the cost of its base as it is (no effect) is fitted again from
+        there (:func:`ssamb.closeloop.fit._rescued`). A fit of a few iterations ends near its
+        start, and a start far worse than the base it extends can leave the candidate worse
+        than no effect at all.
     joint_iterations : int
         Most Gauss-Newton iterations of the final joint refit (it starts from the fitted values
         and stops once converged; not capped by the estimator's ``max_iter``).
