@@ -47,7 +47,7 @@ from scipy import stats
 
 from ..errors import InputError
 from .comparison import Comparison, Part
-from .estimate import EstimateSettings, MapFit, Problem, map_fit
+from .estimate import EstimateSettings, MapFit, Problem, _prior_precision, map_fit
 from .models import EffectModel, combine
 
 __all__ = ["Base", "Candidate", "excess_share", "fit_candidate", "holdout_score", "improvement_z", "chi2_views",
@@ -336,8 +336,8 @@ def _start_cost(prob, theta: np.ndarray, runs: int) -> tuple[float, int]:
 
 
 def _prior_cost(prob, theta: np.ndarray) -> float:
-    sd = np.asarray(prob.prior_sd, float)
-    lam = np.where(np.isfinite(sd), 1.0 / np.where(np.isfinite(sd), sd, 1.0) ** 2, 0.0)
+    r"""The prior's share of the posterior cost, :math:`\|(\theta - \theta_0)/\sigma_p\|^2`."""
+    lam = _prior_precision(np.asarray(prob.prior_sd, float))
     return float(np.sum(lam * (np.asarray(theta, float) - prob.theta0) ** 2))
 
 
@@ -525,13 +525,14 @@ def alias_sd(prob, model, fit, k: int, replays: int = 4) -> np.ndarray:
 
 
 def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateSettings, seed0: int,
-                  log=None, step_rel: float = 0.05, mirror: bool = True, better_start: bool = False,
-                  rescue: bool = False) -> Candidate:
+                  log=None, step_rel: float = 0.05, mirror: bool = True, start: str = "prior") -> Candidate:
     """Fit ``models`` (jointly) added to ``base`` on the fitting part, with the base's free
     parameters; predict the whole record. ``mirror=False``: a single effect's fit is not moved to
     its mirrors and aliases (a deliberate start stays where the fit from it ends; its spread over
-    them still counts, :func:`alias_sd`). ``better_start``: the base's free parameters start where
-    :func:`better_base_start` puts them (before a single effect's coarse grid is scored).
+    them still counts, :func:`alias_sd`). ``start`` (``closeloop.candidate_start``): ``prior``, the
+    base's unidentified parameters at their prior mean (:class:`Base`); ``better``, where
+    :func:`better_base_start` puts them (before a single effect's coarse grid is scored);
+    ``rescue``, the prior start, and a fit left worse than no effect refitted (:func:`_rescued`).
 
     A fit that fails numerically (a replay that raises, a singular surrogate) returns a
     candidate rejected with the reason.
@@ -541,12 +542,12 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
     prob, build = _problem(cmp, base, model, seed0, step_rel)
     k = len(base.free)
     try:
-        if better_start and k:
+        if start == "better" and k:
             prob.start = better_base_start(prob, k, settings.centre_runs, log)
         if len(models) == 1 and model.grid:
             prob.start = _coarse_start(prob, model, k)
         fit = map_fit(prob, settings, log)
-        if rescue:
+        if start == "rescue":
             fit = _rescued(prob, model, fit, settings, k, log)
         if len(models) == 1:
             fit = _regridded(prob, model, fit, settings, k, log)

@@ -332,8 +332,7 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
                                    moving_iter=settings.candidate_iterations)
     clog = (lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None
     cand = fit_candidate(cmp, base, models, cand_est, seed0, step_rel=settings.calibration_step_rel, log=clog,
-                         better_start=settings.candidate_start == "better",
-                         rescue=settings.candidate_start == "rescue")
+                         start=settings.candidate_start)
     _candidate_alias(cmp, base, cand, settings, clog)
     _judge(cand, cmp, base, ev, ft, settings, measured_contact)
     if any(r.startswith("the signature of ") for r in cand.reasons):
