@@ -10,10 +10,10 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-if TYPE_CHECKING:  # python-control is imported where a model is built (it is slow to import)
+if TYPE_CHECKING:  # python-control and the identification are imported where a model is built (slow to import)
     import control
 
-from .identification import IdentifiedModel
+    from .identification import IdentifiedModel
 from .io import DataError, atomic_path, load_npz, read_json, save_npz, write_json
 
 __all__ = ["Failed", "save_failed", "write_failed", "check_failed", "failure_reason", "load_record",
@@ -121,6 +121,8 @@ def load_model(path: str | Path) -> IdentifiedModel:
 
 
 def _model_from(arrays: Mapping, meta: Mapping) -> IdentifiedModel:
+    from .identification import IdentifiedModel
+
     return IdentifiedModel(
         A=np.atleast_2d(arrays["A"]), B=np.atleast_2d(arrays["B"]), C=np.atleast_2d(arrays["C"]),
         D=np.atleast_2d(arrays["D"]), dt=float(meta["dt"]), method=meta["method"],

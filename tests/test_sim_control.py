@@ -328,3 +328,19 @@ def test_the_self_sensed_loop_is_chaotic_the_probe_loop_is_not(cfg):
     assert rms["add"]["i_ypos"] > 0.1 and rms["round"]["i_ypos"] > 0.1
     assert rms["add"]["x_meas"] < 1e-3 * cfg["converters"]["position_noise_m"]
     assert rms["round"]["x_meas"] > 0.1 * qx
+
+
+def test_stored_kernel_coefficients_are_python_controls(cfg):
+    """Every stored controller of ``KERNEL_COEFFICIENTS`` is python-control's Tustin discretisation
+    bit for bit (the simulator reads the table so as not to import python-control), and the
+    shipped configuration's controller is in it."""
+    from ssamb.sim.controller import KERNEL_COEFFICIENTS, kernel_coefficients_of_control, pid_kernel_coefficients
+
+    for key, stored in KERNEL_COEFFICIENTS.items():
+        computed = kernel_coefficients_of_control(*key)
+        assert [(k, float(v).hex()) for k, v in computed] == [(k, float(v).hex()) for k, v in stored], key
+    t1, ctl = cfg["table1"], cfg["controller"]
+    key = (t1["pid_kp_a_per_m"], t1["pid_ki_a_per_m_s"], t1["pid_kd_a_s_per_m"], ctl["derivative_filter_hz"],
+           ctl["fs_hz"])
+    assert key in KERNEL_COEFFICIENTS
+    assert pid_kernel_coefficients(cfg) == dict(kernel_coefficients_of_control(*key))
