@@ -119,7 +119,7 @@ class Settings:
         or the base as it is, whichever costs less beyond the cost's noise
         (:func:`ssamb.closeloop.fit.better_base_start`); ``rescue``: the prior start, and a fit
         that stops short above the cost of its base as it is (no effect) is fitted again from
-        there (:func:`ssamb.closeloop.fit._rescued`). A fit of a few iterations ends near its
+        there (:func:`ssamb.closeloop.fit._rescued`; the default). A fit of a few iterations ends near its
         start, and a start far worse than the base it extends can leave the candidate worse
         than no effect at all.
     joint_iterations : int
@@ -193,7 +193,7 @@ class Settings:
     conflict_z: float = 3.0
     claim_residual: float = 0.5
     candidate_iterations: int = 4
-    candidate_start: str = "prior"
+    candidate_start: str = "rescue"
     joint_iterations: int = 12
     estimate: dict = dataclasses.field(default_factory=dict)
     whirl_phase_min_deg: float = 10.0
