@@ -346,3 +346,86 @@ def test_a_device_line_whose_replays_spread_has_its_own_noise_factor():
     shared = (1 + 1 / m) / (1 - 2 / (9 * (m - 1))) ** 3
     assert out[[0, 1, 2, 3, 4, 6]] == pytest.approx(np.full(6, shared))
     assert out[[5, 7]] == pytest.approx(np.full(2, 25.0 * (1 + 1 / m)))
+
+
+# -- the unbalance's evidence: a line in both axes in quadrature, or in one axis beside a noisy other
+
+_WHIRL = SimpleNamespace(whirl_phase_min_deg=10.0, whirl_ratio_max=5.0)
+
+
+def _line_ft(ax: complex, ay: complex, se_x: float, se_y: float, f_hz: float = 170.0):
+    ln = {"f_hz": f_hz, "phasor": {"d_x": ax, "d_y": ay}, "se": {"d_x": se_x, "d_y": se_y},
+          "chi2": {"d_x": abs(ax) ** 2 / se_x ** 2, "d_y": abs(ay) ** 2 / se_y ** 2}}
+    return SimpleNamespace(lines=[ln], frame=SimpleNamespace(df_hz=1.25))
+
+
+def test_whirl_misfit_of_a_quiet_axis_is_the_smallest_allowed_ratio():
+    """y = 0 beside a line in x: the closest allowed whirl has |y/x| = 1/5, so the misfit is
+    (|x| / 5)^2 / se_y^2; a y lagging x by 90 degrees at any allowed ratio fits exactly."""
+    from ssamb.sim.effects.unbalance import whirl_misfit
+
+    assert whirl_misfit(2.0, 0j, 0.01, True, _WHIRL) == pytest.approx((2.0 / 5.0) ** 2 / 0.01 ** 2, rel=1e-9)
+    assert whirl_misfit(2.0, -3j, 0.01, True, _WHIRL) == pytest.approx(0.0, abs=1e-9)
+    # the strong axis y: x = y / rho, with |rho| up to 5 (x at least a fifth of y)
+    assert whirl_misfit(2.0, 0j, 0.01, False, _WHIRL) == pytest.approx((2.0 / 5.0) ** 2 / 0.01 ** 2, rel=1e-9)
+
+
+@pytest.mark.parametrize("phase", np.linspace(-math.pi, math.pi, 7))
+def test_whirl_misfit_does_not_depend_on_the_time_origin(phase):
+    """Rotating both phasors by one phase (another start of the record) leaves the misfit."""
+    from ssamb.sim.effects.unbalance import whirl_misfit
+
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        a, b = complex(*rng.standard_normal(2)), complex(*rng.standard_normal(2))
+        se = float(rng.uniform(0.05, 2.0))
+        r = complex(math.cos(phase), math.sin(phase))
+        for strong_is_x in (True, False):
+            assert whirl_misfit(a * r, b * r, se, strong_is_x, _WHIRL) == pytest.approx(
+                whirl_misfit(a, b, se, strong_is_x, _WHIRL), rel=1e-9, abs=1e-12)
+
+
+def test_unbalance_evidence_from_one_axis_when_the_other_is_noisy():
+    """A line 37 times its noise in x and, in y, 0.85 of it lagging by 131 degrees but within a
+    noise as large (chi-square 1.2): evidence, the speed hinted at the line."""
+    from ssamb.sim.effects.unbalance import evidence
+
+    ax = 1.0 + 0j
+    ay = 0.85 * complex(math.cos(math.radians(-131)), math.sin(math.radians(-131)))
+    ev = evidence(_line_ft(ax, ay, se_x=ax.real / 37.0, se_y=abs(ay) / 1.1), 0.01, _WHIRL)
+    assert ev["significant"] and ev["hints"]["speed_hz"] == 170.0
+    assert ev["details"]["lines"][0]["one_axis"] == "x"
+
+
+def test_no_unbalance_evidence_from_one_axis_when_the_other_is_quiet():
+    """The same x line, y measured to a hundredth of it and empty: not a rotating force."""
+    from ssamb.sim.effects.unbalance import evidence
+
+    ev = evidence(_line_ft(1.0 + 0j, 0j, se_x=1 / 37.0, se_y=0.01), 0.01, _WHIRL)
+    assert not ev["significant"] and not ev["hints"]
+    assert ev["details"]["lines"][0]["whirl_misfit_chi2"] > 100
+
+
+def test_unbalance_evidence_needs_quadrature_when_both_axes_show_the_line():
+    """Both axes 30 times their noise: y lagging x by 90 degrees is a whirl, y in phase is not."""
+    from ssamb.sim.effects.unbalance import evidence
+
+    assert evidence(_line_ft(1.0 + 0j, -1j, 1 / 30, 1 / 30), 0.01, _WHIRL)["significant"]
+    assert not evidence(_line_ft(1.0 + 0j, 1.0 + 0j, 1 / 30, 1 / 30), 0.01, _WHIRL)["significant"]
+
+
+def test_whirl_misfit_is_the_minimum_over_the_sector():
+    """Against a dense grid of the allowed ratios: never above the grid's minimum, and within
+    its resolution of it."""
+    from ssamb.sim.effects.unbalance import whirl_misfit
+
+    rng = np.random.default_rng(5)
+    ang = np.radians(np.linspace(-170.0, -10.0, 1601))
+    rho = (np.geomspace(0.2, 5.0, 801)[:, None] * np.exp(1j * ang)[None, :]).ravel()
+    for _ in range(30):
+        a, b = complex(*rng.standard_normal(2)), complex(*(3 * rng.standard_normal(2)))
+        for strong_is_x, pred in ((True, rho * a), (False, a / rho)):
+            grid = float(np.min(np.abs(b - pred)) ** 2)
+            got = whirl_misfit(a, b, 1.0, strong_is_x, _WHIRL)
+            assert got <= grid + 1e-12
+            assert math.sqrt(grid) - math.sqrt(got) <= 0.01 * (abs(a) * 5 + abs(b))

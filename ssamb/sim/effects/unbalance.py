@@ -7,7 +7,10 @@ Physics: a rotating force of magnitude :math:`m e\,\omega^2`,
 Signature: a line at the spin frequency that the excitation lacks, in both axes' coil currents,
 in quadrature (y lagging x by about 90 degrees; the x probe loop and the y self-sensing loop
 differ, more so at high frequency, hence a wide tolerance). Evidence: the line's chi-square in
-:math:`d_x` and :math:`d_y`.
+:math:`d_x` and :math:`d_y`. A line above the noise in one axis only counts when the other
+axis's phasor is within its noise of some whirl the tolerance allows (:func:`whirl_misfit`): an
+axis the loop makes noisy (a clipped controller output beside the line, say) cannot show its
+half of the whirl, but an axis that is quiet at the line rules the rotating force out.
 
 Fit: :math:`(a, b) = m e\,(\cos\varphi, \sin\varphi)`, so that the force is linear in them, and
 the spin speed, started at the line's frequency (its sensitivity is zero until the force is
@@ -45,29 +48,105 @@ def apply(e: dict, ov: dict, f_x, f_y, t, base_dir) -> None:
     f_y += amp * np.sin(w * t + ph)
 
 
+def whirl_misfit(a_strong: complex, a_weak: complex, se_weak: float, strong_is_x: bool, st) -> float:
+    r"""The weak axis's distance, in its noise, from the closest forward whirl the tolerances allow.
+
+    With the ratio :math:`\rho = A_y / A_x` allowed in the sector :math:`-180^\circ + w \le
+    \arg\rho \le -w`, :math:`1/r \le |\rho| \le r` (``whirl_phase_min_deg``,
+    ``whirl_ratio_max``), the weak axis's phasor is predicted from the strong one's for every
+    :math:`\rho` of the sector; returns :math:`\min_\rho |A_{weak} - \hat A_{weak}(\rho)|^2 /
+    \sigma^2_{weak}`, a chi-square with 2 degrees of freedom when a rotating force made the line.
+
+    Parameters
+    ----------
+    a_strong, a_weak : complex
+        The line's phasors in the axis where it stands above the noise and in the other.
+    se_weak : float
+        The standard error of ``a_weak`` (per real and imaginary part).
+    strong_is_x : bool
+        Whether the strong axis is x (then :math:`\hat A_y = \rho A_x`, else :math:`\hat A_x =
+        A_y / \rho`).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> st = SimpleNamespace(whirl_phase_min_deg=10.0, whirl_ratio_max=5.0)
+    >>> round(whirl_misfit(1.0, -1j, 0.1, True, st), 6)       # y lags x by 90 deg: a whirl
+    0.0
+    >>> whirl_misfit(1.0, 0j, 0.01, True, st) > 100          # y quiet: no rotating force
+    True
+    """
+    if abs(a_strong) == 0:
+        return 0.0
+    w = math.radians(float(st.whirl_phase_min_deg))
+    r = float(st.whirl_ratio_max)
+    # |A_weak - rho A_x| = |A_x| |q - rho|, q = A_y / A_x; |A_x - A_y / rho| = |A_y| |q - 1/rho|,
+    # q = A_x / A_y, where 1/rho lies in the mirrored sector (angles w..180 - w)
+    q = a_weak / a_strong
+    lo, hi = (-math.pi + w, -w) if strong_is_x else (w, math.pi - w)
+    d = _distance_to_sector(q, lo, hi, 1.0 / r, r)
+    return float(abs(a_strong) ** 2 * d ** 2 / max(se_weak, 1e-300) ** 2)
+
+
+def _distance_to_sector(q: complex, lo: float, hi: float, r_lo: float, r_hi: float) -> float:
+    """Distance from ``q`` to the annular sector ``r_lo <= |z| <= r_hi``, ``lo <= arg z <= hi``
+    (radians, ``-pi < lo < hi <= pi``): radial inside the angles, else to the nearer edge."""
+    rq, th = abs(q), math.atan2(q.imag, q.real)
+    if lo <= th <= hi:
+        return max(r_lo - rq, rq - r_hi, 0.0)
+    best = math.inf
+    for phi in (lo, hi):
+        u = complex(math.cos(phi), math.sin(phi))
+        t = min(max((q * u.conjugate()).real, r_lo), r_hi)
+        best = min(best, abs(q - t * u))
+    return best
+
+
+def _line_evidence(ln: dict, crit: float, st) -> tuple[dict, float | None]:
+    """One line's entry in the details and its strength as a rotating force (None: not one).
+
+    Both axes above the noise: the forward quadrature within the tolerances, the strength the
+    weaker axis's chi-square. One axis above it: the other within its noise of a whirl
+    (:func:`whirl_misfit` at most ``crit``), the strength the strong axis's chi-square."""
+    ax, ay = ln["phasor"].get("d_x", 0j), ln["phasor"].get("d_y", 0j)
+    cx, cy = ln["chi2"].get("d_x", 0.0), ln["chi2"].get("d_y", 0.0)
+    rho = ay / ax if abs(ax) > 0 else 0j
+    ang = math.degrees(math.atan2(rho.imag, rho.real)) if rho != 0 else 0.0
+    ratio = abs(rho)
+    w = st.whirl_phase_min_deg
+    quad = -180.0 + w <= ang <= -w and 1.0 / st.whirl_ratio_max <= ratio <= st.whirl_ratio_max
+    both = cx > crit and cy > crit
+    entry = {"f_hz": ln["f_hz"], "chi2_d_x": cx, "chi2_d_y": cy, "y_over_x_deg": ang, "y_over_x_abs": ratio,
+             "both_axes": both, "quadrature_forward": quad}
+    if both:
+        return entry, (min(cx, cy) if quad else None)
+    if max(cx, cy) <= crit:
+        return entry, None
+    strong_is_x = cx > cy
+    weak, a_weak = ("d_y", ay) if strong_is_x else ("d_x", ax)
+    se = ln.get("se", {}).get(weak)
+    if se is None:
+        c = cy if strong_is_x else cx
+        se = abs(a_weak) / math.sqrt(c) if c > 0 else math.inf
+    mis = whirl_misfit(ax if strong_is_x else ay, a_weak, se, strong_is_x, st) if math.isfinite(se) else 0.0
+    entry.update(one_axis="x" if strong_is_x else "y", whirl_misfit_chi2=mis)
+    return entry, (max(cx, cy) if mis <= crit else None)
+
+
 def evidence(ft, alpha: float, st) -> dict:
     from scipy import stats  # imported where needed: scipy.stats costs every job and workflow start ~0.7 CPU s
 
     best = None
     det = {"lines": []}
+    # a line above the noise (chi2 with 2 dof, Bonferroni over lines)
+    crit = float(stats.chi2.isf(alpha / max(len(ft.lines), 1) / 2, 2))
     for ln in ft.lines:
-        ax, ay = ln["phasor"].get("d_x", 0j), ln["phasor"].get("d_y", 0j)
-        cx, cy = ln["chi2"].get("d_x", 0.0), ln["chi2"].get("d_y", 0.0)
-        # both axes above the noise at this line (chi2 with 2 dof, Bonferroni over lines)
-        crit = float(stats.chi2.isf(alpha / max(len(ft.lines), 1) / 2, 2))
-        both = cx > crit and cy > crit
-        rho = ay / ax if abs(ax) > 0 else 0j
-        ang = math.degrees(math.atan2(rho.imag, rho.real)) if rho != 0 else 0.0
-        ratio = abs(rho)
-        w = st.whirl_phase_min_deg
-        quad = -180.0 + w <= ang <= -w and 1.0 / st.whirl_ratio_max <= ratio <= st.whirl_ratio_max
-        entry = {"f_hz": ln["f_hz"], "chi2_d_x": cx, "chi2_d_y": cy, "y_over_x_deg": ang, "y_over_x_abs": ratio,
-                 "both_axes": both, "quadrature_forward": quad}
+        entry, strength = _line_evidence(ln, crit, st)
         det["lines"].append(entry)
-        if both and quad:
-            sc = cx + cy
+        if strength is not None:
+            sc = entry["chi2_d_x"] + entry["chi2_d_y"]
             if best is None or sc > best[0]:
-                best = (sc, ln, min(cx, cy))
+                best = (sc, ln, strength)
     if best is None:
         return {"score": 0.0, "log10_p": 0.0, "significant": False, "hints": {}, "details": det}
     sc, ln, cmin = best
