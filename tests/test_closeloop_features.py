@@ -429,3 +429,40 @@ def test_whirl_misfit_is_the_minimum_over_the_sector():
             got = whirl_misfit(a, b, 1.0, strong_is_x, _WHIRL)
             assert got <= grid + 1e-12
             assert math.sqrt(grid) - math.sqrt(got) <= 0.01 * (abs(a) * 5 + abs(b))
+
+
+def test_a_lines_frequency_scatters_as_the_speed_standard_error_says():
+    """The least-squares frequency of a sinusoid in white noise (``fit_line``) scatters over noise
+    draws as :func:`speed_se_hz` says from the line's chi-square (the Cramer-Rao bound), within
+    the 95 % band of a standard deviation from 200 draws; the unbalance's spin speed is taken
+    from it, not fitted through the replays' phasors."""
+    from ssamb.closeloop.spectra import fit_line
+    from ssamb.sim.effects.unbalance import speed_se_hz
+
+    rng = np.random.default_rng(8)
+    n, f0, amp, sig = 2000, 129.37, 1.0, 2.0
+    fr = make_frame(FS, 0, n, {}, None, None)
+    t = fr.t_s
+    est, se = [], []
+    for _ in range(200):
+        x = amp * np.cos(2 * np.pi * f0 * t + 0.7) + sig * rng.standard_normal(n)
+        ln = fit_line(fr, {"v": x}, {"v": sig}, f0)
+        est.append(ln["f_hz"])
+        se.append(speed_se_hz(fr.df_hz, amp ** 2 / (ln["se"]["v"] ** 2)))
+    spread, pred = float(np.std(est)), float(np.median(se))
+    assert 0.8 * pred < spread < 1.2 * pred, (spread, pred)
+    assert abs(np.mean(est) - f0) < 3 * pred / math.sqrt(200)
+
+
+def test_the_unbalance_fits_its_force_at_the_lines_speed():
+    """The unbalance model's free parameters are the force's two components; the speed is the
+    line's, reported with the line's standard error."""
+    from ssamb.sim.effects import unbalance
+
+    m = unbalance.model({"speed_hz": 129.22, "speed_se_hz": 0.0025}, None, _WHIRL)
+    assert m.params == ("me_cos_kgm", "me_sin_kgm")
+    built = m.build(np.array([3e-6, 4e-6]))[0]
+    assert built["speed_hz"] == 129.22 and built["mass_ecc_kgm"] == pytest.approx(5e-6)
+    rep = unbalance.report(m, np.array([3e-6, 4e-6]), np.array([1e-7, 1e-7]), True)[0]
+    assert rep["params"]["speed_hz"] == 129.22 and rep["uncertainty"]["speed_hz"] == 0.0025
+    assert rep["force_n"] == pytest.approx(5e-6 * (2 * math.pi * 129.22) ** 2)

@@ -12,9 +12,13 @@ axis's phasor is within its noise of some whirl the tolerance allows (:func:`whi
 axis the loop makes noisy (a clipped controller output beside the line, say) cannot show its
 half of the whirl, but an axis that is quiet at the line rules the rotating force out.
 
-Fit: :math:`(a, b) = m e\,(\cos\varphi, \sin\varphi)`, so that the force is linear in them, and
-the spin speed, started at the line's frequency (its sensitivity is zero until the force is
-nonzero, so it joins the fit after the first step).
+Fit: :math:`(a, b) = m e\,(\cos\varphi, \sin\varphi)`, so that the force is linear in them, at
+the spin speed the line itself measures (:func:`speed_se_hz`). The replays are compared through
+one phasor per line over the fitting part, in which a speed error and a phase error are nearly
+one direction (only the phasor's small sinc loss tells them apart), so a speed fitted there
+wanders along that valley by many times the line's own precision, and the held-out part, after
+the fitting part, sees the phase drift it leaves. The line's least-squares frequency over the
+same part (:func:`ssamb.closeloop.spectra.fit_line`) reaches the Cramer-Rao bound instead.
 """
 from __future__ import annotations
 
@@ -154,11 +158,26 @@ def evidence(ft, alpha: float, st) -> dict:
     # the speed's finite-difference step: a tenth of the frequency resolution (a phase drift of
     # 0.6 rad over the segment)
     return {"score": sc, "log10_p": lp, "significant": lp < math.log10(alpha),
-            "hints": {"speed_hz": ln["f_hz"], "speed_step_hz": 0.1 * ft.frame.df_hz}, "details": det}
+            "hints": {"speed_hz": ln["f_hz"], "speed_se_hz": speed_se_hz(ft.frame.df_hz, max(ln["chi2"].values()))},
+            "details": det}
+
+
+def speed_se_hz(df_hz: float, chi2: float) -> float:
+    r"""The standard error of a line's least-squares frequency: the Cramer-Rao bound of a sinusoid
+    in white noise, :math:`\sigma_f = \frac{\sqrt{12}}{2\pi}\,\Delta f / \sqrt{\chi^2}`, with
+    :math:`\Delta f` the frame's resolution and :math:`\chi^2 = |A|^2 / \sigma_A^2` the line's
+    strength in its strongest view (:math:`\sigma_A` per real and imaginary part).
+
+    Examples
+    --------
+    >>> round(speed_se_hz(1.0, 12.0 / (2 * math.pi) ** 2), 12)     # chi2 = 12 / (2 pi)^2: one bin
+    1.0
+    """
+    return float(math.sqrt(12.0) / (2 * math.pi) * df_hz / math.sqrt(max(chi2, 1e-300)))
 
 
 def claim(ft, hints: dict, df_hz: float, st) -> float:
-    """The line chi-square at the fitted speed in both axes (in any phase relation), so that a
+    """The line chi-square at the spin speed in both axes (in any phase relation), so that a
     fit that leaves the line, or creates one in the other axis, fails."""
     f0 = hints.get("speed_hz")
     tot = 0.0
@@ -176,22 +195,22 @@ def model(hints: dict, record, st) -> EffectModel | str:
 
     def build(t):
         me = float(math.hypot(t[0], t[1]))
-        return [{"name": NAME, "speed_hz": float(t[2]), "mass_ecc_kgm": me, "phase_rad": float(math.atan2(t[1], t[0]))}]
+        return [{"name": NAME, "speed_hz": f_hz, "mass_ecc_kgm": me, "phase_rad": float(math.atan2(t[1], t[0]))}]
     s = 1.0 / (w * w)     # 1 N of force
-    df = float(hints.get("speed_step_hz", 0.01))
-    return EffectModel(NAME, ("me_cos_kgm", "me_sin_kgm", "speed_hz"), np.array([0.0, 0.0, f_hz]),
-                       np.array([s, s, df]), np.array([-1.0, -1.0, max(f_hz - 5 * df, 0.0)]),
-                       np.array([1.0, 1.0, f_hz + 5 * df]), build, {"speed_hz": f_hz},
+    return EffectModel(NAME, ("me_cos_kgm", "me_sin_kgm"), np.array([0.0, 0.0]), np.array([s, s]),
+                       np.array([-1.0, -1.0]), np.array([1.0, 1.0]), build,
+                       {"speed_hz": f_hz, "speed_se_hz": float(hints.get("speed_se_hz", 0.0))},
                        size_params=("me_cos_kgm", "me_sin_kgm"))
 
 
 def report(m: EffectModel, theta, se, significant) -> list[dict]:
-    a, b, f_hz = theta
+    a, b = theta[:2]
+    f_hz = float(m.fixed["speed_hz"])
     me = math.hypot(a, b)
     w = 2 * math.pi * f_hz
     se_me = float(math.sqrt(0.5 * (se[0] ** 2 + se[1] ** 2)))
     return [{"name": NAME, "params": {"speed_hz": float(f_hz), "mass_ecc_kgm": float(me),
                                       "phase_rad": float(math.atan2(b, a))},
-             "uncertainty": {"speed_hz": float(se[2]), "mass_ecc_kgm": se_me,
+             "uncertainty": {"speed_hz": float(m.fixed.get("speed_se_hz", 0.0)), "mass_ecc_kgm": se_me,
                              "phase_rad": float(se_me / max(me, 1e-300))},
              "force_n": float(me * w * w)}]
