@@ -277,8 +277,8 @@ def test_excess_of_a_replicate_covariance():
 
 
 def test_size_statistic_of_an_effect_against_zero():
-    """Wald statistic over the effect's size parameters only (an unbalance's spin speed does not
-    count); a size within its error is not an effect."""
+    """Wald statistic over the effect's size parameters only (a parameter beside them, a spin
+    speed say, does not count); a size within its error is not an effect."""
     from ssamb.closeloop.search import size_statistic
 
     w, k = size_statistic(np.array([3.0, 4.0]), np.eye(2), ["fx_n", "fy_n"])
@@ -288,17 +288,18 @@ def test_size_statistic_of_an_effect_against_zero():
     w0, _ = size_statistic(np.array([0.06]), np.array([[1e12]]), ["fy_n"])
     assert w0 < 1e-10
     unb = _amb_model("unbalance", {"speed_hz": 50.0})
-    assert unb.params == ("me_cos_kgm", "me_sin_kgm", "speed_hz")
-    w, k = size_statistic(np.array([2e-5, 0.0, 50.0]), np.diag([1e-10, 1e-10, 1e-4]), unb.params, unb.size_params)
+    assert unb.params == unb.size_params == ("me_cos_kgm", "me_sin_kgm")
+    params = unb.params + ("speed_hz",)
+    w, k = size_statistic(np.array([2e-5, 0.0, 50.0]), np.diag([1e-10, 1e-10, 1e-4]), params, unb.size_params)
     assert k == 2 and w == pytest.approx(4.0)
     # one size parameter determined (34 errors from zero), the other left at an unestimated
     # parameter's placeholder variance: the effect is not null (a suite draw's unbalance had been
     # dropped so), and W does not depend on the units
     th, c = np.array([-1.18e-5, -5.07e-6, 112.0]), np.diag([3.5e-7 ** 2, 4.0, 1e-6])
-    w, k = size_statistic(th, c, unb.params, unb.size_params)
+    w, k = size_statistic(th, c, params, unb.size_params)
     assert k == 2 and w == pytest.approx((1.18e-5 / 3.5e-7) ** 2, rel=1e-6)
     scale = np.array([1e6, 1e3, 1.0])
-    assert size_statistic(th * scale, c * np.outer(scale, scale), unb.params, unb.size_params)[0] == pytest.approx(w)
+    assert size_statistic(th * scale, c * np.outer(scale, scale), params, unb.size_params)[0] == pytest.approx(w)
 
 
 def test_joint_refit_starts_where_the_effects_were_found():
