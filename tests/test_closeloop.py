@@ -201,10 +201,17 @@ LIGHT = {"replay_seeds": 4, "estimate": {"centre_runs": 3, "max_iter": 6},
                          "selfsensing.calibration_offset_error_m": 1.0e-5}}
 
 
-def _light_config(tmp: Path) -> Path:
-    """``tmp/c.yaml``: the repository's config with the :data:`LIGHT` analysis and no data sets."""
+#: lighter still, for a test of how the replays run rather than of what the analysis finds: one
+#: calibrated parameter, one candidate per round and one effect, one iteration of every fit
+LIGHTEST = {**LIGHT, "replay_seeds": 2, "estimate": {"centre_runs": 2, "max_iter": 2}, "max_effects": 1,
+            "calibration": {"table1.i_bias_a": 0.03},
+            "candidates_per_round": 1, "candidate_iterations": 1, "joint_iterations": 1}
+
+
+def _light_config(tmp: Path, settings: dict = LIGHT) -> Path:
+    """``tmp/c.yaml``: the repository's config with a light analysis (``settings``) and no data sets."""
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    cfg["closeloop"].update(LIGHT)
+    cfg["closeloop"].update(settings)
     cfg["closeloop"]["datasets"] = {}
     cfg["closeloop"].pop("default_dataset", None)
     (tmp / "c.yaml").write_text(yaml.safe_dump(cfg))
@@ -220,16 +227,21 @@ def written(row5) -> Path:
 
 @pytest.mark.slow
 def test_the_result_does_not_depend_on_the_workers(tmp_path):
-    """One analysis on two processes and on one: byte-identical closeloop.json (every replay is
-    seeded).
+    """One analysis on two processes and on one: byte-identical reports, written as
+    ``closeloop.json`` is written (every replay is seeded).
 
     The smallest analysis that takes every path the replays run in parallel: a 0.3 s multisine
-    on both axes (20-100 Hz) of a rig with a 30 us y sensor delay, light settings. Its search fits
-    candidates (the estimator's batches of replays, and the seeds of a prediction), among them
-    the sensor delay, whose whole-sample aliases are replayed in one batch; what it finds does
-    not matter here, only that both runs agree bit for bit. The record's length and the lines do
-    not change which code runs, only how long each replay takes."""
-    config = _light_config(tmp_path)
+    on both axes (20-100 Hz) of a rig with a 30 us y sensor delay, the lightest settings (one
+    iteration of each fit, one candidate). Its search fits a candidate (the estimator's batches of
+    replays, and the seeds of a prediction), the sensor delay, whose whole-sample aliases are
+    replayed in one batch; what it finds does not matter here, only that both runs agree bit for
+    bit. The record's length, the lines and the iterations do not change which code runs, only how
+    long it takes."""
+    from ssamb.closeloop import analyse
+    from ssamb.device import get_device
+    from ssamb.io import write_json
+
+    cfg = load_config(_light_config(tmp_path, LIGHTEST))
     sc = tmp_path / "s.yaml"
     sc.write_text(yaml.safe_dump({
         "config": str(REPO / "config.yaml"),
@@ -239,10 +251,10 @@ def test_the_result_does_not_depend_on_the_workers(tmp_path):
         "noise": {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 5}}))
     data = tmp_path / "rig.npz"
     run_scenario(sc, data, progress=False)
-    for workers in ("2", "1"):
-        assert main(["closeloop", str(data), "--out", str(tmp_path / workers), "--quiet", "--workers", workers,
-                     "--config", str(config)]) == 0
-    two, one = ((tmp_path / w / "closeloop.json").read_text() for w in ("2", "1"))
+    arrays, meta = get_device("amb").load(data)
+    for workers in (2, 1):
+        write_json(tmp_path / f"{workers}.json", analyse(arrays, meta, cfg, workers=workers))
+    two, one = ((tmp_path / f"{w}.json").read_text() for w in (2, 1))
     rounds = json.loads(two)["rounds"]
     assert any(c["name"] == "sensor_delay" for r in rounds for c in r["candidates"]), rounds
     assert two == one
