@@ -76,7 +76,7 @@ def test_wheel_in_a_fresh_environment_simulates_and_closes_the_loop(tmp_path):
     """``pip install ssamb-*.whl`` into a new virtual environment (its dependencies those of the
     test environment, linked in; ``pip check`` holds them against the wheel's requirements), then the
     command line from a folder outside the checkout, with no configuration of its own except
-    a lighter close-the-loop analysis."""
+    the lightest close-the-loop analysis (one iteration of each fit, one candidate)."""
     whl = _wheel(tmp_path / "src", tmp_path / "dist")
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
@@ -108,13 +108,14 @@ def test_wheel_in_a_fresh_environment_simulates_and_closes_the_loop(tmp_path):
     assert (work / "lev.npz").stat().st_size > 10_000 and (work / "lev.json").exists()
 
     cfg = yaml.safe_load(DEFAULT_CONFIG_PATH.read_text())
-    cfg["closeloop"].update({"replay_seeds": 4, "estimate": {"centre_runs": 3, "max_iter": 4}, "max_effects": 1,
+    cfg["closeloop"].update({"replay_seeds": 2, "estimate": {"centre_runs": 2, "max_iter": 2}, "max_effects": 1,
+                             "candidates_per_round": 1, "candidate_iterations": 1, "joint_iterations": 1,
                              "calibration": {"table1.i_bias_a": 0.03}, "datasets": {}})
     cfg["closeloop"].pop("default_dataset", None)
     (work / "light.yaml").write_text(yaml.safe_dump(cfg))
     (work / "rig.yaml").write_text(yaml.safe_dump({
         "experiment": {"kind": "multisine", "point": "position", "axis": "both", "amplitude_m": 3.0e-5,
-                       "f_min_hz": 10, "f_max_hz": 100, "f_resolution_hz": 10, "periods": 6, "seed": 3},
+                       "f_min_hz": 20, "f_max_hz": 100, "f_resolution_hz": 20, "periods": 6, "seed": 3},
         "noise": {"position_m": 3.0e-8, "current_a": 3.0e-4, "seed": 5}}))
     ssamb("rig", "rig.yaml", "--out", "rig.npz")
     ssamb("closeloop", "rig.npz", "--out", "cl", "--config", "light.yaml", "--workers", "2")
