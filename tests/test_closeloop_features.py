@@ -354,7 +354,7 @@ _WHIRL = SimpleNamespace(whirl_phase_min_deg=10.0, whirl_ratio_max=5.0)
 
 
 def _line_ft(ax: complex, ay: complex, se_x: float, se_y: float, f_hz: float = 170.0):
-    ln = {"f_hz": f_hz, "phasor": {"d_x": ax, "d_y": ay}, "se": {"d_x": se_x, "d_y": se_y},
+    ln = {"f_hz": f_hz, "f_se_hz": 0.01, "phasor": {"d_x": ax, "d_y": ay}, "se": {"d_x": se_x, "d_y": se_y},
           "chi2": {"d_x": abs(ax) ** 2 / se_x ** 2, "d_y": abs(ay) ** 2 / se_y ** 2}}
     return SimpleNamespace(lines=[ln], frame=SimpleNamespace(df_hz=1.25))
 
@@ -431,27 +431,38 @@ def test_whirl_misfit_is_the_minimum_over_the_sector():
             assert math.sqrt(grid) - math.sqrt(got) <= 0.01 * (abs(a) * 5 + abs(b))
 
 
-def test_a_lines_frequency_scatters_as_the_speed_standard_error_says():
-    """The least-squares frequency of a sinusoid in white noise (``fit_line``) scatters over noise
-    draws as :func:`speed_se_hz` says from the line's chi-square (the Cramer-Rao bound), within
-    the 95 % band of a standard deviation from 200 draws; the unbalance's spin speed is taken
-    from it, not fitted through the replays' phasors."""
-    from ssamb.closeloop.spectra import fit_line
-    from ssamb.sim.effects.unbalance import speed_se_hz
+@pytest.mark.parametrize("noise", ["white", "a stronger line 2.6 bins away", "a random walk"])
+def test_a_lines_frequency_scatters_as_its_standard_error_says(noise):
+    """The frequency ``fit_line`` estimates (the unbalance's spin speed) scatters over 200 noise
+    draws as its own standard error ``f_se_hz`` says: within 20 % in white noise, where the taper
+    costs at most 1.7 times the Cramer-Rao bound; never more than 20 % above it beside a stronger
+    line 2.6 resolutions away or under a random walk's low-frequency power, and unbiased there
+    within three standard errors of the mean (the untapered fit is biased by the neighbour by
+    more than twice its scatter's mean error)."""
+    from ssamb.closeloop.spectra import crb_frequency_se, fit_line
 
     rng = np.random.default_rng(8)
     n, f0, amp, sig = 2000, 129.37, 1.0, 2.0
     fr = make_frame(FS, 0, n, {}, None, None)
     t = fr.t_s
-    est, se = [], []
+    est, se, crb = [], [], []
     for _ in range(200):
         x = amp * np.cos(2 * np.pi * f0 * t + 0.7) + sig * rng.standard_normal(n)
+        if noise.startswith("a stronger"):
+            x += 4 * amp * np.cos(2 * np.pi * (f0 - 2.6 * fr.df_hz) * t + rng.uniform(0, 2 * np.pi))
+        elif noise == "a random walk":
+            x += 30 * sig * np.cumsum(rng.standard_normal(n)) / math.sqrt(n)
         ln = fit_line(fr, {"v": x}, {"v": sig}, f0)
         est.append(ln["f_hz"])
-        se.append(speed_se_hz(fr.df_hz, amp ** 2 / (ln["se"]["v"] ** 2)))
+        se.append(ln["f_se_hz"])
+        crb.append(crb_frequency_se(fr.df_hz, amp ** 2 / ln["se"]["v"] ** 2))
     spread, pred = float(np.std(est)), float(np.median(se))
-    assert 0.8 * pred < spread < 1.2 * pred, (spread, pred)
-    assert abs(np.mean(est) - f0) < 3 * pred / math.sqrt(200)
+    assert abs(np.mean(est) - f0) < 3 * spread / math.sqrt(200)
+    if noise == "white":
+        assert 0.8 * pred < spread < 1.2 * pred, (spread, pred)
+        assert pred < 1.7 * float(np.median(crb))
+    else:
+        assert spread < 1.2 * pred, (spread, pred)
 
 
 def test_the_unbalance_fits_its_force_at_the_lines_speed():

@@ -13,12 +13,14 @@ axis the loop makes noisy (a clipped controller output beside the line, say) can
 half of the whirl, but an axis that is quiet at the line rules the rotating force out.
 
 Fit: :math:`(a, b) = m e\,(\cos\varphi, \sin\varphi)`, so that the force is linear in them, at
-the spin speed the line itself measures (:func:`speed_se_hz`). The replays are compared through
+the spin speed the line itself measures, with the line's standard error. The replays are compared through
 one phasor per line over the fitting part, in which a speed error and a phase error are nearly
 one direction (only the phasor's small sinc loss tells them apart), so a speed fitted there
 wanders along that valley by many times the line's own precision, and the held-out part, after
 the fitting part, sees the phase drift it leaves. The line's least-squares frequency over the
-same part (:func:`ssamb.closeloop.spectra.fit_line`) reaches the Cramer-Rao bound instead.
+same part (:func:`ssamb.closeloop.spectra.fit_line`, tapered so that what the model leaves
+elsewhere in the spectrum does not pull it) comes within a third of the Cramer-Rao bound in
+white noise, and its sandwich standard error says how far it can be trusted in coloured noise.
 """
 from __future__ import annotations
 
@@ -158,22 +160,8 @@ def evidence(ft, alpha: float, st) -> dict:
     # the speed's finite-difference step: a tenth of the frequency resolution (a phase drift of
     # 0.6 rad over the segment)
     return {"score": sc, "log10_p": lp, "significant": lp < math.log10(alpha),
-            "hints": {"speed_hz": ln["f_hz"], "speed_se_hz": speed_se_hz(ft.frame.df_hz, max(ln["chi2"].values()))},
+            "hints": {"speed_hz": ln["f_hz"], "speed_se_hz": float(ln["f_se_hz"])},
             "details": det}
-
-
-def speed_se_hz(df_hz: float, chi2: float) -> float:
-    r"""The standard error of a line's least-squares frequency: the Cramer-Rao bound of a sinusoid
-    in white noise, :math:`\sigma_f = \frac{\sqrt{12}}{2\pi}\,\Delta f / \sqrt{\chi^2}`, with
-    :math:`\Delta f` the frame's resolution and :math:`\chi^2 = |A|^2 / \sigma_A^2` the line's
-    strength in its strongest view (:math:`\sigma_A` per real and imaginary part).
-
-    Examples
-    --------
-    >>> round(speed_se_hz(1.0, 12.0 / (2 * math.pi) ** 2), 12)     # chi2 = 12 / (2 pi)^2: one bin
-    1.0
-    """
-    return float(math.sqrt(12.0) / (2 * math.pi) * df_hz / math.sqrt(max(chi2, 1e-300)))
 
 
 def claim(ft, hints: dict, df_hz: float, st) -> float:
