@@ -2,6 +2,7 @@
 the estimator on a noisy simulator, identifiability, and fits that must not crash."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -701,6 +702,35 @@ def test_a_fit_whose_steps_no_longer_lower_the_cost_stops():
     assert cut.evaluations < 0.7 * full.evaluations
     assert abs(cut.chi2 - full.chi2) < _margin(N, 0.09 / 4, full.chi2)
     assert cut.theta[0] == pytest.approx(3.0, abs=0.05)
+
+
+def test_a_fit_stopped_short_stops_its_extra_iterations_when_they_no_longer_lower_the_cost():
+    """The same cusp: with ``short_progress_window`` 3 the fit runs its first ``max_iter``
+    iterations exactly as without it, and in the iterations a fit far above the floor is given
+    beyond them stops once three steps lowered the cost by less than its noise, for fewer
+    replays and at a cost within that noise of where the whole budget ends."""
+    from ssamb.closeloop.estimate import _margin
+
+    N = 60
+    col = np.linspace(-30.0, 30.0, N)
+    off = np.where(np.arange(N) % 2 == 0, 8.0, -8.0)
+
+    def evaluate(theta, seed):
+        x = theta[0] - 3.0
+        return col * np.sign(x) * np.sqrt(abs(x)) + off + 0.3 * np.random.default_rng(seed).standard_normal(N)
+
+    def prob():
+        return Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.1]), np.array([-5.0]), np.array([10.0]),
+                       evaluate, start=np.array([0.0]))
+    s = EstimateSettings(max_iter=4, short_iter=12)
+    full = map_fit(prob(), s)
+    cut = map_fit(prob(), dataclasses.replace(s, short_progress_window=3))
+    first = [h for h in full.history if h.get("iteration", 99) < s.max_iter]
+    assert [h for h in cut.history if h.get("iteration", 99) < s.max_iter] == first
+    stops = [h["iteration"] for h in cut.history if h.get("no_progress")]
+    assert stops and stops[0] >= s.max_iter and not any(h.get("no_progress") for h in full.history)
+    assert cut.evaluations < full.evaluations
+    assert abs(cut.chi2 - full.chi2) < _margin(N, 0.09 / 4, full.chi2)
 
 
 def _alias_comparison(monkeypatch, z_hold: dict, z_fit: dict):

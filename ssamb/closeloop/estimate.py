@@ -150,6 +150,13 @@ class EstimateSettings:
         default: the anchors' noise is that of single replays, and a mean of replays still tells
         points apart that it does not -- with a window of 3 the randomized suite's final models
         were beaten by the truth held out where they were not without it (the validation page).
+    short_progress_window : int
+        The :func:`_no_progress` test over this many steps (0: never) in the iterations a fit
+        stopped short is given beyond ``max_iter`` (``short_iter``) only: those iterations exist
+        for a fit still lowering its cost far above the floor, and one whose last steps no
+        longer lower it by more than the anchors' noise is at rest beside a misfit the
+        parameters cannot remove (an effect the model lacks), where more iterations only move
+        its centre about. The first ``max_iter`` iterations are untouched.
     design_seed : int
         Which orthogonal array the design draws (:func:`_pairs`): 0, the first ``p`` columns of
         the Hadamard matrix in the parameters' order; another value, columns, signs and rows drawn
@@ -205,6 +212,7 @@ class EstimateSettings:
     max_refresh: int = 2
     design_seed: int = 0
     progress_window: int = 0
+    short_progress_window: int = 0
     moving_step: float = 4.0
     moving_iter: int = 0
     common_seeds: int = 0
@@ -958,10 +966,12 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             converged = True
             break
         tried.append(float(a @ a))
-        if _no_progress(tried, s.progress_window, _margin(len(a), rho / max(s.centre_runs, 1), float(a @ a))):
+        margin = _margin(len(a), rho / max(s.centre_runs, 1), float(a @ a))
+        window = s.short_progress_window if it >= s.max_iter and s.progress_window == 0 else s.progress_window
+        if _no_progress(tried, window, margin):
             history[-1]["no_progress"] = True
             if log is not None:
-                log(f"  no progress: {s.progress_window} steps lowered the cost by less than its noise")
+                log(f"  no progress: {window} steps lowered the cost by less than its noise")
             break
         k += 1
         # the step tried, in units of the trust region (max_step steps h per coordinate)

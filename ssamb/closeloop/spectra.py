@@ -337,7 +337,7 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
     :math:`(A^{-1} B A^{-1})_{\omega\omega}/2\pi` of the weighted least squares in the
     frequency and every view's two amplitudes, with :math:`A = \sum_v J_v^\top H J_v / s_v^2`,
     :math:`B = \sum_v J_v^\top H^2 J_v / s_v^2` (noise white at :math:`s_v` near the line): in
-    white noise it is about 1.3 times the Cramer-Rao bound of the untapered fit
+    white noise it is about 1.6 times the Cramer-Rao bound of the untapered fit
     (:math:`\frac{\sqrt{12}}{2\pi}\Delta f/\sqrt{\chi^2}`), the price of the taper.
 
     The phasor is the untapered least squares at :math:`\hat\omega`, :math:`A_v = a_v - j b_v`

@@ -19,7 +19,7 @@ one direction (only the phasor's small sinc loss tells them apart), so a speed f
 wanders along that valley by many times the line's own precision, and the held-out part, after
 the fitting part, sees the phase drift it leaves. The line's least-squares frequency over the
 same part (:func:`ssamb.closeloop.spectra.fit_line`, tapered so that what the model leaves
-elsewhere in the spectrum does not pull it) comes within a third of the Cramer-Rao bound in
+elsewhere in the spectrum does not pull it) scatters about 1.6 times the Cramer-Rao bound in
 white noise, and its sandwich standard error says how far it can be trusted in coloured noise.
 """
 from __future__ import annotations
