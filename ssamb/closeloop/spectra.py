@@ -318,27 +318,29 @@ def _periodic_project(frame: Frame, x: np.ndarray) -> np.ndarray:
 def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: float = 1.5) -> dict:
     r"""Refine a line's frequency, with its standard error, and estimate its phasor in every view.
 
-    The frequency maximises the Hann-weighted power of the views' best sinusoids,
+    The frequency maximises the weighted power of the views' best sinusoids,
 
     .. math:: \hat\omega = \arg\max_\omega \sum_v \frac{\hat e_v^\top H D (D^\top H D)^{-1}
               D^\top H \hat e_v}{s_v^2}, \qquad D = [\cos\omega t,\ \sin\omega t],
 
-    within ``search_bins`` of ``f0_hz`` (:math:`H` the Hann taper; time from the start of the
-    record, so the phase is that of the record), with the part synchronous with a periodic
-    excitation removed from data and regressors alike. The taper keeps what the model leaves
-    elsewhere in the spectrum (a broadband excitation's misfit below the line, other lines, the
-    sidebands of a periodic excitation) from pulling the frequency: its sidelobes fall as
-    :math:`1/k^3` against the rectangle's :math:`1/k`. Each view is weighted by its noise *near
-    the line*, :math:`s_v = \max(\sigma_v, \hat\sigma_{v,\mathrm{local}})`, the Hann-tapered
-    residual power (the line removed) of the bins 3-6 resolutions away on the louder side: a view whose
-    residual is loud about the line carries less of its frequency, whatever its floor elsewhere.
+    within ``search_bins`` of ``f0_hz`` (time from the start of the record, so the phase is that
+    of the record), with the part synchronous with a periodic excitation removed from data and
+    regressors alike. :math:`H` is the identity for a periodic frame, whose projection has
+    removed the whole response to the excitation (the model's misfit of it included), and the
+    Hann taper otherwise: there the residual holds the model's misfit of a broadband excitation,
+    often loud below the line, and the taper's sidelobes, falling as :math:`1/k^3` against the
+    rectangle's :math:`1/k`, keep it from pulling the frequency. Each view is weighted by its
+    noise *near the line*, :math:`s_v = \max(\sigma_v, \hat\sigma_{v,\mathrm{local}})`, the
+    tapered residual power (the line removed) of the bins 3-6 resolutions away on the louder
+    side: a view whose residual is loud about the line carries less of its frequency, whatever
+    its floor elsewhere.
 
     ``f_se_hz`` is the estimator's own standard error, the sandwich
     :math:`(A^{-1} B A^{-1})_{\omega\omega}/2\pi` of the weighted least squares in the
     frequency and every view's two amplitudes, with :math:`A = \sum_v J_v^\top H J_v / s_v^2`,
-    :math:`B = \sum_v J_v^\top H^2 J_v / s_v^2` (noise white at :math:`s_v` near the line): in
-    white noise it is about 1.6 times the Cramer-Rao bound of the untapered fit
-    (:math:`\frac{\sqrt{12}}{2\pi}\Delta f/\sqrt{\chi^2}`), the price of the taper.
+    :math:`B = \sum_v J_v^\top H^2 J_v / s_v^2` (noise white at :math:`s_v` near the line): the
+    Cramer-Rao bound (:math:`\frac{\sqrt{12}}{2\pi}\Delta f/\sqrt{\chi^2}`) at the local noise
+    untapered, about 1.6 times it with the taper in white noise (the price of the taper).
 
     The phasor is the untapered least squares at :math:`\hat\omega`, :math:`A_v = a_v - j b_v`
     (so :math:`e_v = \mathrm{Re}\,A_v e^{j\omega t}`); the projection keeps it unbiased by the
@@ -359,7 +361,7 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         return _grid_line(frame, segs, sigmas, k0)
     names = list(segs)
     proj = {v: _periodic_project(frame, np.asarray(e, float)) for v, e in segs.items()}
-    hann = np.hanning(frame.n)
+    taper = np.ones(frame.n) if frame.periodic else np.hanning(frame.n)
 
     def design(fh):
         w = 2 * np.pi * fh * t
@@ -370,14 +372,15 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         return D, np.linalg.solve(D.T @ D, D.T @ np.stack([proj[v] for v in names]).T)      # (2, views)
 
     D0, ab0 = phasors(f0_hz)
-    s = {v: max(sigmas[v], _local_sigma(proj[v] - D0 @ ab0[:, i], f0_hz / frame.df_hz, hann))
+    s = {v: max(sigmas[v], _local_sigma(proj[v] - D0 @ ab0[:, i], f0_hz / frame.df_hz, taper,
+                                     usable=~frame.grid_mask if frame.periodic else None))
          for i, v in enumerate(names)}
-    Ew = np.stack([proj[v] * hann / s[v] for v in names])
+    Ew = np.stack([proj[v] * taper / s[v] for v in names])
 
     def power(fh):
         D = design(fh)
         B = Ew @ D                       # (views, 2)
-        return float(np.sum(B * np.linalg.solve(D.T @ (D * hann[:, None]), B.T).T))
+        return float(np.sum(B * np.linalg.solve(D.T @ (D * taper[:, None]), B.T).T))
 
     df = frame.df_hz
     res = optimize.minimize_scalar(lambda fh: -power(fh), bounds=(f0_hz - search_bins * df, f0_hz + search_bins * df),
@@ -387,7 +390,7 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
     Ginv = np.linalg.inv(D.T @ D)
     scale = math.sqrt(max(Ginv[0, 0], Ginv[1, 1]))
     out = {"f_hz": fh, "phasor": {}, "se": {}, "chi2": {}, "component": {}, "se_scale": scale,
-           "f_se_hz": _frequency_se(t, D, ab, [s[v] for v in names], hann), "local_sigma": s}
+           "f_se_hz": _frequency_se(t, D, ab, [s[v] for v in names], taper), "local_sigma": s}
     for i, v in enumerate(names):
         a, b = ab[:, i]
         se = sigmas[v] * scale
@@ -398,21 +401,25 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
     return out
 
 
-def _local_sigma(r: np.ndarray, k0: float, taper: np.ndarray, inner: int = 3, outer: int = 6) -> float:
-    r"""White-equivalent standard deviation of ``r`` near bin ``k0``: the mean Hann-tapered power
+def _local_sigma(r: np.ndarray, k0: float, taper: np.ndarray, inner: int = 3, outer: int = 6,
+                 usable: np.ndarray | None = None) -> float:
+    r"""White-equivalent standard deviation of ``r`` near bin ``k0``: the mean tapered power
     :math:`|X(k)|^2 / W_2` over the bins :math:`3 \le \pm(k - k_0) \le 6` (beyond the taper's main
     lobe, where a line's remainder would sit), the louder side: noise that falls steeply with
-    frequency reaches the line through the taper from below."""
+    frequency reaches the line through the taper from below. ``usable`` excludes bins (a periodic
+    frame's grid, which its projection has emptied)."""
     P = np.abs(np.fft.rfft(taper * r)) ** 2
     k = np.arange(len(P))
-    sides = [P[(s * (k - k0) >= inner) & (s * (k - k0) <= outer) & (k >= 1)] for s in (-1, 1)]
+    ok = (k >= 1) if usable is None else (k >= 1) & usable[:len(P)]
+    sides = [P[(s * (k - k0) >= inner) & (s * (k - k0) <= outer) & ok] for s in (-1, 1)]
     means = [float(np.mean(x)) for x in sides if len(x)]
     return float(math.sqrt(max(means) / np.sum(taper ** 2))) if means else 0.0
 
 
 def _frequency_se(t: np.ndarray, D: np.ndarray, ab: np.ndarray, s: list, h: np.ndarray) -> float:
-    r"""Sandwich standard error (Hz) of the frequency of a Hann-weighted least-squares fit of one
-    sinusoid per view with a shared frequency (:func:`fit_line`), the noise white at ``s`` per view."""
+    r"""Sandwich standard error (Hz) of the frequency of a weighted least-squares fit of one
+    sinusoid per view with a shared frequency (:func:`fit_line`; ``h`` the taper), the noise white at
+    ``s`` per view."""
     nv = len(s)
     p = 1 + 2 * nv
     A, B = np.zeros((p, p)), np.zeros((p, p))
