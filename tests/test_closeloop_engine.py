@@ -1264,3 +1264,25 @@ def test_a_restart_is_preferred_by_the_fitting_part_then_by_its_signature(monkey
     cmp = SimpleNamespace(fit="fit")
     got = search._preferred(cmp, base, fit, alt, SimpleNamespace(alpha_accept=1e-3))
     assert got is (alt if taken else fit)
+
+
+def test_a_signature_left_below_its_own_evidence_threshold_is_not_still_evident():
+    """``still_evident`` asks the effect's own evidence test, at the level the search ranks at
+    (alpha_evidence shared by the library's effects): a cross-axis test left with p = 0.28 after
+    the fit (a chi-square excess of 15.9 over many degrees of freedom) is noise, one left at
+    p = 1e-6 with three effects in the library (level 1e-3 / 3) is not."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.search import still_evident
+
+    seen = []
+
+    def evidence(ft, alpha, st):
+        seen.append(alpha)
+        return {"significant": ft.p < alpha}
+    dev = SimpleNamespace(library=("a", "b", "c"), effects={"a": SimpleNamespace(evidence=evidence)})
+    st = SimpleNamespace(alpha_evidence=1e-3)
+    assert not still_evident(dev, "a", SimpleNamespace(p=0.28), st)
+    assert still_evident(dev, "a", SimpleNamespace(p=1e-6), st)
+    assert not still_evident(dev, "a", SimpleNamespace(p=5e-4), st)       # above 1e-3 / 3
+    assert seen == [pytest.approx(1e-3 / 3)] * 3

@@ -221,7 +221,8 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
         before = claim_stat(cmp.device, n, ft, ev[n].hints, cmp.fit.frame.df_hz, settings)
         after = claim_stat(cmp.device, n, ft_after, ev[n].hints, cmp.fit.frame.df_hz, settings)
         cand.score["claims"][n] = (before, after)
-        if after > max(claim_crit, settings.claim_residual * before):
+        if after > max(claim_crit, settings.claim_residual * before) and \
+                still_evident(cmp.device, n, ft_after, settings):
             cand.reasons.append(f"the signature of {n} remains after the fit (claim chi2 {before:.3g} -> {after:.3g})")
     # the model with it delevitates in most of its replays where the measured rotor did not (a rig
     # run near its stability margin, a large delay, may delevitate in a few realisations of its
@@ -239,6 +240,16 @@ def _judge(cand: Candidate, cmp: Comparison, base: Base, ev: dict, ft, settings,
         if cand.fit.converged and w <= float(stats.chi2.isf(settings.alpha_accept, k)):
             cand.reasons.append(f"its size is consistent with zero in its fit (Wald chi2 {w:.3g} on {k})")
     cand.score["size_chi2"] = w_crit
+
+
+def still_evident(device, name: str, ft, settings) -> bool:
+    """Is the evidence of effect ``name`` in ``ft`` significant, by its own test at the level the
+    search ranks effects at (:func:`ssamb.closeloop.signatures.evidence_all`)? A signature that
+    stays above half its statistic after the effect's fit but below its own evidence threshold
+    is noise: its statistic (a chi-square excess over many degrees of freedom, say) has a null
+    spread of its own, which the fixed two-degree threshold of the claim does not know."""
+    alpha = settings.alpha_evidence / max(len(device.library), 1)
+    return bool(device.effects[name].evidence(ft, alpha, settings)["significant"])
 
 
 def improves(hs: dict, settings) -> bool:

@@ -108,8 +108,9 @@ class Settings:
         stated tolerance; the effect search starts with it at its nominal value.
     claim_residual : float
         An accepted effect must leave at most this fraction of its own signature's statistic
-        (or less than the evidence threshold) in the residual: it must act on what it claims
-        (an unbalance fitted to one axis of a two-axis line fails).
+        (or less than the evidence threshold, the two-degree one and its own evidence test's) in
+        the residual: it must act on what it claims (an unbalance fitted to one axis of a
+        two-axis line fails).
     candidate_iterations : int
         Gauss-Newton iterations of a candidate's fit (it starts from the calibrated model and the
         evidence's hints, close to its optimum).
