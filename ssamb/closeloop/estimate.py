@@ -156,7 +156,8 @@ class EstimateSettings:
         for a fit still lowering its cost far above the floor, and one whose last steps no
         longer lower it by more than the anchors' noise is at rest beside a misfit the
         parameters cannot remove (an effect the model lacks), where more iterations only move
-        its centre about. The first ``max_iter`` iterations are untouched.
+        its centre about. The first ``max_iter`` iterations are untouched. The search uses it in
+        the calibration, not in the final joint refit, which makes the reported model.
     design_seed : int
         Which orthogonal array the design draws (:func:`_pairs`): 0, the first ``p`` columns of
         the Hadamard matrix in the parameters' order; another value, columns, signs and rows drawn
