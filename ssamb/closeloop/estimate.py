@@ -151,13 +151,14 @@ class EstimateSettings:
         points apart that it does not -- with a window of 3 the randomized suite's final models
         were beaten by the truth held out where they were not without it (the validation page).
     short_progress_window : int
-        The :func:`_no_progress` test over this many steps (0: never) in the iterations a fit
-        stopped short is given beyond ``max_iter`` (``short_iter``) only: those iterations exist
-        for a fit still lowering its cost far above the floor, and one whose last steps no
-        longer lower it by more than the anchors' noise is at rest beside a misfit the
-        parameters cannot remove (an effect the model lacks), where more iterations only move
-        its centre about. The first ``max_iter`` iterations are untouched. The search uses it in
-        the calibration, not in the final joint refit, which makes the reported model.
+        The :func:`_no_progress` test over this many steps (0: never) in the iterations a fit is
+        given beyond ``max_iter`` only (``short_iter`` far above the floor, ``moving_iter`` while
+        still on its way): those iterations exist for a fit still lowering its cost, and one
+        whose last steps no longer lower it by more than the anchors' noise is at rest beside a
+        misfit the parameters cannot remove (an effect the model lacks), where more iterations
+        only move its centre about. The first ``max_iter`` iterations are untouched. The search
+        uses it in the calibration and the candidates' fits, not in the final joint refit, which
+        makes the reported model.
     design_seed : int
         Which orthogonal array the design draws (:func:`_pairs`): 0, the first ``p`` columns of
         the Hadamard matrix in the parameters' order; another value, columns, signs and rows drawn

@@ -762,7 +762,8 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
                    probe=np.concatenate([np.zeros(len(free), bool)] + [size_mask(m) for m in models]))
     import dataclasses
 
-    # the final model runs its extra iterations out (the progress window is the calibration's)
+    # the final model runs its extra iterations out (the progress window is for the calibration
+    # and the candidates' screens)
     joint_est = dataclasses.replace(est, max_iter=settings.joint_iterations, short_progress_window=0)
     fit = map_fit(prob, joint_est, (lambda m: _log(progress, "  joint " + m)) if progress else None)
     ident = identifiability(fit.info, prob.prior_sd, names, settings.identifiable_ratio, cov=fit.cov_misfit,
