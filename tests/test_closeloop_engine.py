@@ -676,6 +676,19 @@ def test_data_implied_limits_narrow_the_bounds_of_a_calibration():
     assert low.upper == pytest.approx([-0.5, -1.0]) and low.lower == pytest.approx([-0.9, -1.5])
 
 
+def _cusp_problem(N: int = 60) -> Problem:
+    """A one-parameter problem whose residual has a cusp at 3 (:math:`r = c\\,\\mathrm{sign}(x)
+    \\sqrt{|x|}`) plus a misfit of +-8 per entry no parameter explains, noise 0.3 per entry."""
+    col = np.linspace(-30.0, 30.0, N)
+    off = np.where(np.arange(N) % 2 == 0, 8.0, -8.0)
+
+    def evaluate(theta, seed):
+        x = theta[0] - 3.0
+        return col * np.sign(x) * np.sqrt(abs(x)) + off + 0.3 * np.random.default_rng(seed).standard_normal(N)
+    return Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.1]), np.array([-5.0]), np.array([10.0]),
+                   evaluate, start=np.array([0.0]))
+
+
 def test_a_fit_whose_steps_no_longer_lower_the_cost_stops():
     """A residual with a cusp at its optimum (:math:`r = c\\,\\mathrm{sign}(x)\\sqrt{|x|}` plus a
     misfit no parameter explains, far above the noise floor): the Gauss-Newton steps overshoot
@@ -685,16 +698,7 @@ def test_a_fit_whose_steps_no_longer_lower_the_cost_stops():
     from ssamb.closeloop.estimate import _margin
 
     N = 60
-    col = np.linspace(-30.0, 30.0, N)
-    off = np.where(np.arange(N) % 2 == 0, 8.0, -8.0)
-
-    def evaluate(theta, seed):
-        x = theta[0] - 3.0
-        return col * np.sign(x) * np.sqrt(abs(x)) + off + 0.3 * np.random.default_rng(seed).standard_normal(N)
-
-    def prob():
-        return Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.1]), np.array([-5.0]), np.array([10.0]),
-                       evaluate, start=np.array([0.0]))
+    prob = _cusp_problem
     full = map_fit(prob(), EstimateSettings(progress_window=0))
     cut = map_fit(prob(), EstimateSettings(progress_window=3))
     assert not any(h.get("no_progress") for h in full.history)
@@ -712,16 +716,7 @@ def test_a_fit_stopped_short_stops_its_extra_iterations_when_they_no_longer_lowe
     from ssamb.closeloop.estimate import _margin
 
     N = 60
-    col = np.linspace(-30.0, 30.0, N)
-    off = np.where(np.arange(N) % 2 == 0, 8.0, -8.0)
-
-    def evaluate(theta, seed):
-        x = theta[0] - 3.0
-        return col * np.sign(x) * np.sqrt(abs(x)) + off + 0.3 * np.random.default_rng(seed).standard_normal(N)
-
-    def prob():
-        return Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.1]), np.array([-5.0]), np.array([10.0]),
-                       evaluate, start=np.array([0.0]))
+    prob = _cusp_problem
     s = EstimateSettings(max_iter=4, short_iter=12)
     full = map_fit(prob(), s)
     cut = map_fit(prob(), dataclasses.replace(s, short_progress_window=3))
