@@ -438,10 +438,9 @@ def test_a_lines_frequency_scatters_as_its_standard_error_says(noise):
     draws as its own standard error ``f_se_hz`` says: within 20 % in white noise, where the
     taper of a non-periodic frame costs at most 1.7 times the Cramer-Rao bound, a periodic frame
     (no taper) 1.4 times (its projection takes one of five periods' worth of information, the
-    local noise estimate a little more); never more than 20 % above it beside a stronger line
-    2.6 resolutions away or under a random walk's low-frequency power, and unbiased there within
-    three standard errors of the mean (the untapered fit is biased by the neighbour by more than
-    twice its scatter's mean error)."""
+    local noise estimate a little more); never more than 20 % above it beside a line four times
+    stronger 2.6 resolutions away or under a random walk's low-frequency power; unbiased in every
+    case within three standard errors of the mean."""
     from ssamb.closeloop.spectra import crb_frequency_se, fit_line
 
     rng = np.random.default_rng(8)

@@ -390,7 +390,7 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
     Ginv = np.linalg.inv(D.T @ D)
     scale = math.sqrt(max(Ginv[0, 0], Ginv[1, 1]))
     out = {"f_hz": fh, "phasor": {}, "se": {}, "chi2": {}, "component": {}, "se_scale": scale,
-           "f_se_hz": _frequency_se(t, D, ab, [s[v] for v in names], taper), "local_sigma": s}
+           "f_se_hz": _frequency_se(t, D, ab, [s[v] for v in names], taper)}
     for i, v in enumerate(names):
         a, b = ab[:, i]
         se = sigmas[v] * scale
