@@ -1084,6 +1084,36 @@ def test_the_held_out_z_counts_the_predictions_own_noise():
     assert np.std(z_old) > 1.5, (np.std(z_new), np.std(z_old))
 
 
+@settings(max_examples=25, deadline=None)
+@given(m=st.integers(3, 9), seed=st.integers(0, 2**31 - 1), scale=st.floats(1e-9, 1e3))
+def test_a_leave_one_out_prediction_is_the_mean_of_the_other_replays(m, seed, scale):
+    """:func:`ssamb.closeloop.fit._leave_one_out`: row j is the residual of the mean of every replay
+    but the j-th (to round-off), with those replays as its ``runs``; fewer than three replays:
+    None."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.fit import _leave_one_out
+
+    rng = np.random.default_rng(seed)
+    runs = [{"a": scale * rng.standard_normal(50), "b": rng.standard_normal(50) + 1e3, "delevitated": i == 1}
+            for i in range(m)]
+    seen = []
+
+    def residual(part, pred):
+        seen.append(pred)
+        return np.concatenate([pred["a"], pred["b"]])
+    cmp = SimpleNamespace(seeds=tuple(range(m)), device=SimpleNamespace(channels=("a", "b")),
+                          replay=SimpleNamespace(runs=lambda eff, nn, ov, seeds: runs[: len(seeds)]), residual=residual)
+    rows = _leave_one_out(cmp, None, {}, [])
+    for j, (row, pred) in enumerate(zip(rows, seen)):
+        others = [r for i, r in enumerate(runs) if i != j]
+        want = np.concatenate([np.mean([r[c] for r in others], axis=0) for c in ("a", "b")])
+        np.testing.assert_allclose(row, want, rtol=1e-12, atol=1e-12 * scale)
+        assert len(pred["runs"]) == m - 1 and pred["delevitated"] == (j != 1 and m > 1)
+    cmp.seeds = (0, 1)
+    assert _leave_one_out(cmp, None, {}, []) is None
+
+
 @pytest.mark.parametrize("stopped_short, depth, start_excess, refitted",
                          [(True, 40.0, 1e4, True), (False, 40.0, 1e4, False), (True, 0.5, 1e4, False),
                           (True, 40.0, 1.5, False)])

@@ -160,10 +160,12 @@ def _leave_one_out(cmp: Comparison, part: Part, overrides: dict, effects: list) 
     if m < 3:
         return None
     chans = cmp.device.channels
+    # the mean of the others is the sum of all less one, over m - 1 (one sum per channel, not m)
+    total = {c: np.sum([r[c] for r in runs], axis=0) for c in chans}
 
     def without(j):
         keep = [r for i, r in enumerate(runs) if i != j]
-        out = {c: np.mean([r[c] for r in keep], axis=0) for c in chans}
+        out = {c: (total[c] - runs[j][c]) / (m - 1) for c in chans}
         out["delevitated"] = any(bool(r["delevitated"]) for r in keep)
         out["runs"] = [{c: r[c] for c in chans} for r in keep]
         return out
