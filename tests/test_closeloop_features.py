@@ -438,7 +438,8 @@ def test_a_lines_frequency_scatters_as_its_standard_error_says(noise):
     draws as its own standard error ``f_se_hz`` says: within 20 % in white noise, where the
     taper of a non-periodic frame costs at most 1.7 times the Cramer-Rao bound, a periodic frame
     (no taper) 1.4 times (its projection takes one of five periods' worth of information, the
-    local noise estimate a little more); never more than 20 % above it beside a line four times
+    local noise estimate a little more: the louder of two sides of about three off-grid bins
+    each, up to a quarter above the noise); never more than 20 % above it beside a line four times
     stronger 2.6 resolutions away or under a random walk's low-frequency power; unbiased in every
     case within three standard errors of the mean."""
     from ssamb.closeloop.spectra import crb_frequency_se, fit_line
@@ -468,10 +469,52 @@ def test_a_lines_frequency_scatters_as_its_standard_error_says(noise):
     spread, pred = float(np.std(est)), float(np.median(se))
     assert abs(np.mean(est) - f0) < 3 * spread / math.sqrt(200)
     if noise.startswith("white"):
-        assert 0.8 * pred < spread < 1.2 * pred, (spread, pred)
+        assert (0.75 if fr.periodic else 0.8) * pred < spread < 1.2 * pred, (spread, pred)
         assert pred < (1.4 if fr.periodic else 1.7) * float(np.median(crb))
     else:
         assert spread < 1.2 * pred, (spread, pred)
+
+
+@pytest.mark.parametrize("f0", [36.2, 37.3])
+def test_a_line_clear_in_one_view_takes_its_frequency_from_that_view(f0):
+    """:func:`ssamb.closeloop.residual._find_lines` on a periodic frame (untapered, period 0.4 s): a
+    line 50 times its noise in one view and at its noise in another, whose noise rises towards low
+    frequencies (a random walk: the self-sensed axis). Over 40 noise draws the frequency scatters
+    within its standard error (between 0.7 and 1.2 of it), unbiased within three standard errors
+    of the mean, and the standard error is within 1.3 times the clear view's Cramer-Rao bound
+    halfway between two harmonics of the period (36.2 Hz); beside one (37.3 Hz, 0.08 cycles per
+    period off) the projection takes more of the line and the bound does not hold, but the
+    scatter still does. The floor the line is detected on holds the line's own leakage, a thousand
+    times the clear view's noise there: weighted by it the clear view would count for less than
+    the noisy one."""
+    from ssamb.closeloop.residual import _find_lines
+    from ssamb.closeloop.spectra import crb_frequency_se, dft, noise_floor
+
+    rng = np.random.default_rng(11)
+    n, sig, per = 4000, 0.02, 400                    # 10 periods of a multisine at 10-50 Hz
+    tt = np.arange(n) / FS
+    fr = make_frame(FS, 0, n, {"y": sum(np.cos(2 * np.pi * f * tt + f) for f in (10.0, 20.0, 30.0, 40.0, 50.0))},
+                    per, np.array([10.0, 20.0, 30.0, 40.0, 50.0]))
+    t = fr.t_s
+    est, se = [], []
+    for _ in range(40):
+        ph = rng.uniform(0, 2 * np.pi)
+        res = {"a": np.cos(2 * np.pi * f0 * t + ph) + sig * rng.standard_normal(n),
+               "b": np.sin(2 * np.pi * f0 * t + ph) + rng.standard_normal(n)
+               + 0.3 * np.cumsum(rng.standard_normal(n))}
+        X = {v: dft(fr, x) for v, x in res.items()}
+        S = {v: noise_floor(fr, X[v]) for v in res}
+        found, _ = _find_lines(fr, res, X, S, {"a": 0.0, "b": 0.0},
+                               SimpleNamespace(line_search_max_hz=200.0, alpha_evidence=1e-3),
+                               SimpleNamespace(view_names=["a", "b"]))
+        ln = min(found, key=lambda ln: abs(ln["f_hz"] - f0))
+        est.append(ln["f_hz"])
+        se.append(ln["f_se_hz"])
+    spread, pred = float(np.std(est)), float(np.median(se))
+    assert 0.7 * pred < spread < 1.2 * pred, (spread, pred)
+    assert abs(np.mean(est) - f0) < 3 * spread / math.sqrt(len(est))
+    if f0 == 36.2:
+        assert pred < 1.3 * crb_frequency_se(fr.df_hz, n / (2 * sig ** 2)), pred
 
 
 def test_the_unbalance_fits_its_force_at_the_lines_speed():

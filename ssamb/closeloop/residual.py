@@ -323,7 +323,7 @@ def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings,
     seg = slice(frame.i0, frame.i0 + frame.n)
     vn = dev.view_names
     segs = {v: res_v[v][seg].copy() for v in vn}
-    found = []
+    found, detected = [], []
     for _pass in range(2):
         P = {v: np.abs(X[v]) ** 2 for v in vn}
         Sl = {v: _line_floor(frame, S[v], fl[v]) for v in vn}
@@ -341,8 +341,25 @@ def _find_lines(frame: Frame, res_v: dict, X: dict, S: dict, fl: dict, settings,
             ln = fit_line(frame, segs, sig_at, c["f_hz"])
             ln.update(views_detected=sorted(c["views"]), peak_ratio=c["peak"], threshold=c["threshold"])
             found.append(ln)
+            detected.append(c["f_hz"])
             for v in vn:
                 segs[v] = segs[v] - ln["component"][v]
+        for v in vn:
+            full = res_v[v].copy()
+            full[seg] = segs[v]
+            X[v] = dft(frame, full)
+            S[v] = noise_floor(frame, X[v], floor=fl[v])
+    for i, ln in enumerate(found):
+        # each line fitted again against the floor without the lines: the floor it was detected
+        # on holds its own leakage (a strong line's the most), which would weight the views where
+        # it stands clearest least
+        k = min(int(round(ln["f_hz"] / frame.df_hz)), len(S[vn[0]]) - 1)
+        back = {v: segs[v] + ln["component"][v] for v in vn}
+        new = fit_line(frame, back, {v: math.sqrt(S[v][k] / frame.w2) for v in vn}, detected[i])
+        new.update({key: ln[key] for key in ("views_detected", "peak_ratio", "threshold")})
+        found[i] = new
+        segs = {v: back[v] - new["component"][v] for v in vn}
+    if found:
         for v in vn:
             full = res_v[v].copy()
             full[seg] = segs[v]

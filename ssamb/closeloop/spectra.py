@@ -315,7 +315,8 @@ def _periodic_project(frame: Frame, x: np.ndarray) -> np.ndarray:
     return (r - r.mean(axis=0)).ravel()
 
 
-def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: float = 1.5) -> dict:
+def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: float = 1.5,
+             max_passes: int = 4) -> dict:
     r"""Refine a line's frequency, with its standard error, and estimate its phasor in every view.
 
     The frequency maximises the weighted power of the views' best sinusoids,
@@ -333,7 +334,11 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
     noise *near the line*, :math:`s_v = \max(\sigma_v, \hat\sigma_{v,\mathrm{local}})`, the
     tapered residual power (the line removed) of the bins 3-6 resolutions away on the louder
     side: a view whose residual is loud about the line carries less of its frequency, whatever
-    its floor elsewhere.
+    its floor elsewhere. The line is removed there at the current frequency, and weights and
+    frequency are found in turn (at most ``max_passes`` times, until the frequency moves by less
+    than :math:`10^{-4}` of a resolution): a line removed at its detection bin, up to half a
+    resolution off, leaves a remainder in those bins that is the louder the stronger the line,
+    and would weight the views with the clearest line least.
 
     ``f_se_hz`` is the estimator's own standard error, the sandwich
     :math:`(A^{-1} B A^{-1})_{\omega\omega}/2\pi` of the weighted least squares in the
@@ -353,6 +358,10 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         Per view, the residual over the frame's segment (length ``frame.n``).
     sigmas : dict
         Per view, the white-equivalent noise standard deviation.
+    f0_hz : float
+        The detected line's frequency (its bin); the search lies within ``search_bins`` of it.
+    max_passes : int
+        Most alternations of the views' weights and the frequency.
     """
     t = frame.t_s
     k0 = int(round(f0_hz / frame.df_hz))
@@ -371,26 +380,29 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         D = design(fh)
         return D, np.linalg.solve(D.T @ D, D.T @ np.stack([proj[v] for v in names]).T)      # (2, views)
 
-    D0, ab0 = phasors(f0_hz)
-    s = {v: max(sigmas[v], _local_sigma(proj[v] - D0 @ ab0[:, i], f0_hz / frame.df_hz, taper,
-                                     usable=~frame.grid_mask if frame.periodic else None))
-         for i, v in enumerate(names)}
-    Ew = np.stack([proj[v] * taper / s[v] for v in names])
-
-    def power(fh):
-        D = design(fh)
-        B = Ew @ D                       # (views, 2)
-        return float(np.sum(B * np.linalg.solve(D.T @ (D * taper[:, None]), B.T).T))
-
     df = frame.df_hz
-    res = optimize.minimize_scalar(lambda fh: -power(fh), bounds=(f0_hz - search_bins * df, f0_hz + search_bins * df),
-                                   method="bounded", options={"xatol": 1e-6 * df + 1e-9})
-    fh = float(res.x)
+    fh = f0_hz
+    for _ in range(max_passes):
+        s = _line_weights(frame, proj, names, phasors, fh, sigmas, taper)
+        Ew = np.stack([proj[v] * taper / s[v] for v in names])
+
+        def power(f):
+            D = design(f)
+            B = Ew @ D                       # (views, 2)
+            return float(np.sum(B * np.linalg.solve(D.T @ (D * taper[:, None]), B.T).T))
+
+        res = optimize.minimize_scalar(lambda f: -power(f), bounds=(f0_hz - search_bins * df, f0_hz + search_bins * df),
+                                       method="bounded", options={"xatol": 1e-6 * df + 1e-9})
+        moved, fh = abs(float(res.x) - fh), float(res.x)
+        if moved < 1e-4 * df:
+            break
+    s = _line_weights(frame, proj, names, phasors, fh, sigmas, taper)
     D, ab = phasors(fh)
     Ginv = np.linalg.inv(D.T @ D)
     scale = math.sqrt(max(Ginv[0, 0], Ginv[1, 1]))
     out = {"f_hz": fh, "phasor": {}, "se": {}, "chi2": {}, "component": {}, "se_scale": scale,
-           "f_se_hz": _frequency_se(t, D, ab, [s[v] for v in names], taper)}
+           "f_se_hz": _frequency_se(t, D, ab, [s[v] for v in names], taper, fh,
+                                    lambda x: _periodic_project(frame, x))}
     for i, v in enumerate(names):
         a, b = ab[:, i]
         se = sigmas[v] * scale
@@ -399,6 +411,16 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         out["chi2"][v] = float((a * a + b * b) / se ** 2) if se > 0 else float("inf")
         out["component"][v] = a * np.cos(2 * np.pi * fh * t) + b * np.sin(2 * np.pi * fh * t)
     return out
+
+
+def _line_weights(frame: Frame, proj: dict, names: list, phasors, fh: float, sigmas: dict,
+                  taper: np.ndarray) -> dict:
+    r"""Per view, :math:`s_v = \max(\sigma_v, \hat\sigma_{v,\mathrm{local}})` with the line
+    removed at ``fh`` (:func:`fit_line`)."""
+    D, ab = phasors(fh)
+    usable = ~frame.grid_mask if frame.periodic else None
+    return {v: max(sigmas[v], _local_sigma(proj[v] - D @ ab[:, i], fh / frame.df_hz, taper, usable=usable))
+            for i, v in enumerate(names)}
 
 
 def _local_sigma(r: np.ndarray, k0: float, taper: np.ndarray, inner: int = 3, outer: int = 6,
@@ -416,16 +438,22 @@ def _local_sigma(r: np.ndarray, k0: float, taper: np.ndarray, inner: int = 3, ou
     return float(math.sqrt(max(means) / np.sum(taper ** 2))) if means else 0.0
 
 
-def _frequency_se(t: np.ndarray, D: np.ndarray, ab: np.ndarray, s: list, h: np.ndarray) -> float:
+def _frequency_se(t: np.ndarray, D: np.ndarray, ab: np.ndarray, s: list, h: np.ndarray, f_hz: float,
+                  project) -> float:
     r"""Sandwich standard error (Hz) of the frequency of a weighted least-squares fit of one
     sinusoid per view with a shared frequency (:func:`fit_line`; ``h`` the taper), the noise white at
-    ``s`` per view."""
+    ``s`` per view. ``D`` holds the projected regressors at ``f_hz``, and the frequency's column
+    is the projection of the sinusoid's derivative, :math:`P\,[2\pi t(-a\sin\omega t + b\cos\omega t)]`:
+    the projection does not commute with the factor :math:`t` (near a harmonic of the period it
+    takes most of the sinusoid, and the derivative's projection is not :math:`t` times its own)."""
     nv = len(s)
     p = 1 + 2 * nv
     A, B = np.zeros((p, p)), np.zeros((p, p))
+    w = 2 * np.pi * f_hz * t
+    c, sn = np.cos(w), np.sin(w)
     for i in range(nv):
         a, b = ab[:, i]
-        g = 2 * np.pi * t * (-a * D[:, 1] + b * D[:, 0])       # d/d(frequency in Hz) of a cos + b sin
+        g = project(2 * np.pi * t * (-a * sn + b * c))       # d/d(frequency in Hz) of P(a cos + b sin)
         J = np.column_stack([g, D])
         idx = [0, 1 + 2 * i, 2 + 2 * i]
         A[np.ix_(idx, idx)] += J.T @ (J * h[:, None]) / s[i] ** 2
