@@ -1311,3 +1311,28 @@ def test_a_signature_left_below_its_own_evidence_threshold_is_not_still_evident(
     assert still_evident(dev, "a", SimpleNamespace(p=1e-6), st)
     assert not still_evident(dev, "a", SimpleNamespace(p=5e-4), st)       # above 1e-3 / 3
     assert seen == [pytest.approx(1e-3 / 3)] * 3
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 5000), buckets=st.integers(1, 300), seed=st.integers(0, 2**31 - 1))
+def test_a_plotted_records_envelope_keeps_each_buckets_extremes_in_time_order(n, buckets, seed):
+    """:func:`ssamb.closeloop.figures._envelope`: a short record as it is; a long one as at most
+    ``buckets`` pairs of samples (buckets of equal length but the last), in time order, holding the record's minimum and maximum of
+    every bucket of consecutive samples (so its overall range), and nothing that is not a sample."""
+    from ssamb.closeloop.figures import _envelope
+
+    rng = np.random.default_rng(seed)
+    y = np.cumsum(rng.standard_normal(n))
+    t = np.arange(n) / 10.0
+    te, ye = _envelope(t, y, buckets)
+    if n <= 2 * buckets:
+        assert te is t and ye is y
+        return
+    idx = np.round(te * 10.0).astype(int)
+    assert np.all(np.diff(idx) >= 0) and np.array_equal(y[idx], ye)
+    assert ye.min() == y.min() and ye.max() == y.max()
+    size = -(-n // buckets)
+    assert len(ye) == 2 * -(-n // size) and len(ye) <= 2 * buckets
+    for a in range(0, n, size):
+        inside = ye[(idx >= a) & (idx < a + size)]
+        assert inside.min() == y[a:a + size].min() and inside.max() == y[a:a + size].max()

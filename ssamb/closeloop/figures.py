@@ -31,6 +31,28 @@ def _scale(dev, v: str) -> tuple[float, str]:
     return _SCALES.get(u, (1.0, u))
 
 
+def _envelope(t: np.ndarray, y: np.ndarray, buckets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, y)`` for a line plot of a long record: per bucket of consecutive samples its minimum
+    and its maximum, in the order they occur (about ``buckets`` of them, about twice a figure's
+    width in pixels: the drawn line covers the same pixels as with every sample, at a fraction of
+    the rendering time). A record of at most ``2 * buckets`` samples is returned as it is."""
+    y = np.asarray(y)
+    n = len(y)
+    if n <= 2 * buckets:
+        return t, y
+    size = -(-n // buckets)
+    full = n // size
+    starts = np.arange(full + (n % size > 0)) * size
+    blocks = y[: full * size].reshape(full, size)
+    i_lo, i_hi = starts[:full] + blocks.argmin(axis=1), starts[:full] + blocks.argmax(axis=1)
+    if n % size:
+        tail = y[full * size:]
+        i_lo = np.append(i_lo, full * size + int(tail.argmin()))
+        i_hi = np.append(i_hi, full * size + int(tail.argmax()))
+    idx = np.column_stack([np.minimum(i_lo, i_hi), np.maximum(i_lo, i_hi)]).ravel()
+    return t[idx], y[idx]
+
+
 def _save(fig, out_dir: Path, name: str, names: list) -> None:
     import matplotlib.pyplot as plt
 
@@ -99,7 +121,7 @@ def _time(art: dict, meas: dict, models: dict, sig: dict, out_dir: Path, names: 
     for ax, v in zip(axs, vn):
         k, u = _scale(dev, v)
         for label, col in _MODELS:
-            ax.plot(t, k * (meas[v][hold] - models[label][v][hold]), lw=0.5, color=col, label=label)
+            ax.plot(*_envelope(t, k * (meas[v][hold] - models[label][v][hold])), lw=0.5, color=col, label=label)
         if v in sig:
             ax.axhline(2 * k * sig[v], color="k", lw=0.6, ls="--")
             ax.axhline(-2 * k * sig[v], color="k", lw=0.6, ls="--", label="2 x noise")
@@ -220,9 +242,9 @@ def _holdout_overlay(h: dict, dev, out_dir: Path, names: list) -> None:
     fig, axs = plt.subplots(len(dev.channels), 1, figsize=(10, 2.3 * len(dev.channels)), sharex=True, squeeze=False)
     for ax, c in zip(axs[:, 0], dev.channels):
         k, u = _scale(dev, c)
-        ax.plot(t, k * rec.channels[c][sl], color="k", lw=0.6, label="measured")
-        ax.plot(t, k * h["nominal"][c][sl], color="tab:red", lw=0.8, label="published parameters")
-        ax.plot(t, k * h["final"][c][sl], color="tab:blue", lw=0.8, label="final model")
+        ax.plot(*_envelope(t, k * rec.channels[c][sl]), color="k", lw=0.6, label="measured")
+        ax.plot(*_envelope(t, k * h["nominal"][c][sl]), color="tab:red", lw=0.8, label="published parameters")
+        ax.plot(*_envelope(t, k * h["final"][c][sl]), color="tab:blue", lw=0.8, label="final model")
         ax.set_ylabel(f"{c} ({u})")
     axs[0, 0].legend(loc="upper right", fontsize=7, ncol=3)
     axs[-1, 0].set_xlabel("time (s)")
