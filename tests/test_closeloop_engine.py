@@ -1317,8 +1317,9 @@ def test_a_signature_left_below_its_own_evidence_threshold_is_not_still_evident(
 @given(n=st.integers(1, 5000), buckets=st.integers(1, 300), seed=st.integers(0, 2**31 - 1))
 def test_a_plotted_records_envelope_keeps_each_buckets_extremes_in_time_order(n, buckets, seed):
     """:func:`ssamb.closeloop.figures._envelope`: a short record as it is; a long one as at most
-    ``buckets`` pairs of samples (buckets of equal length but the last), in time order, holding the record's minimum and maximum of
-    every bucket of consecutive samples (so its overall range), and nothing that is not a sample."""
+    ``buckets`` pairs of samples (buckets of equal length but the last), in time order, holding
+    the record's minimum and maximum of every bucket of consecutive samples (so its overall
+    range), and nothing that is not a sample."""
     from ssamb.closeloop.figures import _envelope
 
     rng = np.random.default_rng(seed)
