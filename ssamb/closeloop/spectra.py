@@ -402,7 +402,9 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
     scale = math.sqrt(max(Ginv[0, 0], Ginv[1, 1]))
     out = {"f_hz": fh, "phasor": {}, "se": {}, "chi2": {}, "component": {}, "se_scale": scale,
            "f_se_hz": _frequency_se(t, D, ab, [s[v] for v in names], taper, fh,
-                                    lambda x: _periodic_project(frame, x))}
+                                    lambda x: _periodic_project(frame, x),
+                                    _coherence(frame, [proj[v] - D @ ab[:, i] for i, v in enumerate(names)],
+                                               fh / frame.df_hz, taper))}
     for i, v in enumerate(names):
         a, b = ab[:, i]
         se = sigmas[v] * scale
@@ -438,26 +440,67 @@ def _local_sigma(r: np.ndarray, k0: float, taper: np.ndarray, inner: int = 3, ou
     return float(math.sqrt(max(means) / np.sum(taper ** 2))) if means else 0.0
 
 
+def _coherence(frame: Frame, res: list, k0: float, taper: np.ndarray, inner: int = 3, outer: int = 12) -> np.ndarray:
+    r"""Complex coherence of the views' residuals ``res`` (the line removed) near bin ``k0``,
+
+    .. math:: \hat\rho_{vw} = \frac{\sum_k R_v(k) R_w(k)^*}{\sqrt{\sum_k |R_v(k)|^2 \sum_k |R_w(k)|^2}},
+
+    over the tapered DFT's bins :math:`3 \le |k - k_0| \le 12` (a periodic frame's off-grid bins
+    only): views of one loop (a position, its error, the controller output) carry the same noise
+    there, which a weighting of each view by its own noise counts once per view."""
+    R = np.fft.rfft(np.asarray(res, float) * taper, axis=1)
+    k = np.arange(R.shape[1])
+    near = (np.abs(k - k0) >= inner) & (np.abs(k - k0) <= outer) & (k >= 1)
+    if frame.periodic:
+        near &= ~frame.grid_mask[:R.shape[1]]
+    C = R[:, near] @ R[:, near].conj().T
+    d = np.sqrt(np.maximum(np.real(np.diag(C)), 1e-300))
+    rho = C / np.outer(d, d)
+    np.fill_diagonal(rho, 1.0)
+    return rho
+
+
 def _frequency_se(t: np.ndarray, D: np.ndarray, ab: np.ndarray, s: list, h: np.ndarray, f_hz: float,
-                  project) -> float:
+                  project, rho: np.ndarray | None = None) -> float:
     r"""Sandwich standard error (Hz) of the frequency of a weighted least-squares fit of one
-    sinusoid per view with a shared frequency (:func:`fit_line`; ``h`` the taper), the noise white at
-    ``s`` per view. ``D`` holds the projected regressors at ``f_hz``, and the frequency's column
-    is the projection of the sinusoid's derivative, :math:`P\,[2\pi t(-a\sin\omega t + b\cos\omega t)]`:
-    the projection does not commute with the factor :math:`t` (near a harmonic of the period it
-    takes most of the sinusoid, and the derivative's projection is not :math:`t` times its own)."""
+    sinusoid per view with a shared frequency (:func:`fit_line`; ``h`` the taper), the noise of
+    view :math:`v` white at ``s[v]`` near the line and coherent between views as ``rho`` says
+    (:func:`_coherence`; default none).
+
+    With :math:`J_v` the derivatives of view :math:`v`'s fit (frequency, its two amplitudes),
+    :math:`A = \sum_v J_v^\top H J_v / s_v^2` (the estimator's weights) and
+    :math:`B_{vw} = \frac{1}{N}\sum_k c_k\,\mathrm{Re}\big[G_v(k)^H G_w(k)\,\rho_{vw}\big]`,
+    :math:`G_v` the DFT of :math:`H J_v / s_v` and :math:`c_k` the one-sided spectrum's weights
+    (Parseval: :math:`B_{vv} = J_v^\top H^2 J_v / s_v^2`), the variance is
+    :math:`(A^{-1} B A^{-1})_{ff}`. ``D`` holds the projected regressors at ``f_hz``, and the
+    frequency's column is the projection of the sinusoid's derivative,
+    :math:`P\,[2\pi t(-a\sin\omega t + b\cos\omega t)]`: the projection does not commute with
+    the factor :math:`t` (near a harmonic of the period it takes most of the sinusoid, and the
+    derivative's projection is not :math:`t` times its own)."""
     nv = len(s)
     p = 1 + 2 * nv
-    A, B = np.zeros((p, p)), np.zeros((p, p))
+    n = len(t)
+    A = np.zeros((p, p))
     w = 2 * np.pi * f_hz * t
     c, sn = np.cos(w), np.sin(w)
+    G = []
     for i in range(nv):
         a, b = ab[:, i]
         g = project(2 * np.pi * t * (-a * sn + b * c))       # d/d(frequency in Hz) of P(a cos + b sin)
         J = np.column_stack([g, D])
         idx = [0, 1 + 2 * i, 2 + 2 * i]
         A[np.ix_(idx, idx)] += J.T @ (J * h[:, None]) / s[i] ** 2
-        B[np.ix_(idx, idx)] += J.T @ (J * (h * h)[:, None]) / s[i] ** 2
+        G.append((idx, np.fft.rfft(J * (h / s[i])[:, None], axis=0)))
+    wk = np.full(G[0][1].shape[0], 2.0)
+    wk[0] = 1.0
+    if n % 2 == 0:
+        wk[-1] = 1.0
+    rho = np.eye(nv) if rho is None else np.asarray(rho)
+    B = np.zeros((p, p))
+    for i, (ii, Gi) in enumerate(G):
+        for j, (jj, Gj) in enumerate(G):
+            if i == j or abs(rho[i, j]) > 0:
+                B[np.ix_(ii, jj)] += np.real((Gi.conj() * wk[:, None]).T @ Gj * rho[i, j]) / n
     try:
         Ai = np.linalg.inv(A)
     except np.linalg.LinAlgError:
