@@ -183,6 +183,10 @@ SMOKE_FIXTURES = ("smoke_workdir",)
 #: between the workers by its folder: the tests only read it)
 SHARED_FIXTURES = ("row1", "row2", "row3", "row4", "row5", "rig_pair", "heavier_rig", "chain", "workflow", "data",
                    "model", "plant_and_physics", "pid", "known")
+#: the costliest of them, costliest first (CPU time of their analyses: row 5 with its figures about
+#: 100 s, rows 4, 2, 3 and 1 60 to 45 s): their groups start first, so that the two workers end
+#: on the quick tests together and not one on a long analysis while the other idles
+LONGEST_FIRST = ("row5", "row4", "row2", "row3", "row1")
 _CONFIG = None
 #: the smoke runs this process started (it reaps them)
 _STARTED: list[subprocess.Popen] = []
@@ -238,18 +242,27 @@ def _cost_rank(item) -> int:
     return 0 if slow or item.get_closest_marker("workflow") is not None else 2
 
 
+def _shared(item) -> str | None:
+    """The costly fixture ``item`` shares with other tests (SHARED_FIXTURES), if any."""
+    shared = sorted(set(getattr(item, "fixturenames", ())) & set(SHARED_FIXTURES))
+    return shared[0] if shared else None
+
+
+def _queue_key(item) -> tuple:
+    """Where a test goes in the queue: by :func:`_cost_rank`, and within it the groups of
+    LONGEST_FIRST in that order before the rest."""
+    group = _shared(item)
+    return _cost_rank(item), LONGEST_FIRST.index(group) if group in LONGEST_FIRST else len(LONGEST_FIRST)
+
+
 def pytest_collection_modifyitems(config, items):
-    """With pytest-xdist, every worker orders the tests the same way (:func:`_cost_rank`; the
+    """With pytest-xdist, every worker orders the tests the same way (:func:`_queue_key`; the
     order of collection within a rank) and writes which tests share a costly fixture
     (``groups.json`` in the session's folder), for the scheduler (:func:`pytest_xdist_make_scheduler`)."""
     if not hasattr(config, "workerinput"):
         return
-    items.sort(key=_cost_rank)              # stable: the order of collection within a rank
-    groups = {}
-    for item in items:
-        shared = sorted(set(getattr(item, "fixturenames", ())) & set(SHARED_FIXTURES))
-        if shared:
-            groups[item.nodeid] = shared[0]
+    items.sort(key=_queue_key)              # stable: the order of collection within a key
+    groups = {item.nodeid: _shared(item) for item in items if _shared(item)}
     tmp = _shared_root() / f"groups.json.{os.getpid()}"
     tmp.write_text(json.dumps(groups))
     os.replace(tmp, _shared_root() / "groups.json")
@@ -259,9 +272,12 @@ def pytest_collection_modifyitems(config, items):
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadgroup``: the tests that share a costly fixture (SHARED_FIXTURES) are one unit
     of work, sent to one worker; every other test is a unit of its own. (pytest-xdist's own
-    ``loadgroup`` marks the group in the node id, which pytest 9.2 no longer lets it change.)"""
+    ``loadgroup`` marks the group in the node id, which pytest 9.2 no longer lets it change.) The
+    units go out in the order of the queue (:func:`_queue_key`), not reordered by their number of
+    tests."""
     if config.getvalue("dist") != "loadgroup":
         return None
+    config.option.loadscopereorder = False
     from xdist.scheduler import LoadScopeScheduling
 
     class SharedFixtureScheduling(LoadScopeScheduling):
