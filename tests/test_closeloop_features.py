@@ -517,13 +517,16 @@ def test_a_line_clear_in_one_view_takes_its_frequency_from_that_view(f0):
         assert pred < 1.3 * crb_frequency_se(fr.df_hz, n / (2 * sig ** 2)), pred
 
 
-@pytest.mark.parametrize("periodic", [False, True])
-def test_views_of_one_noise_count_once_in_a_lines_frequency_error(periodic):
+@pytest.mark.parametrize("periodic, delayed", [(False, False), (True, False), (False, True)])
+def test_views_of_one_noise_count_once_in_a_lines_frequency_error(periodic, delayed):
     """:func:`ssamb.closeloop.spectra.fit_line` on three views of one loop: the same line and the
     same noise, scaled by 1, 2 and -0.5 (a position, its error doubled, a controller output), as
-    the views of one axis carry the loop's noise. Over 200 draws the frequency scatters as its
-    standard error says (between 0.8 and 1.2 of it), where views taken as independent would
-    report the error of three separate measurements, a square root of three too small."""
+    the views of one axis carry the loop's noise; or (``delayed``) the third view the first two
+    samples later, a phase of 1.6 rad at the line, so that the views' coherence is complex (with
+    its conjugate the shared noise would enter with the cosine of twice that phase, -0.99).
+    Over 200 draws the frequency scatters as its standard error says (between 0.8 and 1.2 of it),
+    where views taken as independent would report the error of three separate measurements, a
+    square root of three too small."""
     from ssamb.closeloop.spectra import fit_line
 
     rng = np.random.default_rng(12)
@@ -536,8 +539,12 @@ def test_views_of_one_noise_count_once_in_a_lines_frequency_error(periodic):
         fr = make_frame(FS, 0, n, {}, None, None)
     est, se = [], []
     for _ in range(200):
-        x = amp * np.cos(2 * np.pi * f0 * fr.t_s + 0.7) + sig * rng.standard_normal(n)
-        ln = fit_line(fr, {"a": x, "b": 2 * x, "c": -0.5 * x}, {"a": sig, "b": 2 * sig, "c": 0.5 * sig}, f0)
+        tt = np.arange(-2, n) / FS
+        xx = amp * np.cos(2 * np.pi * f0 * tt + 0.7) + sig * rng.standard_normal(n + 2)
+        x = xx[2:]
+        third = xx[:-2] if delayed else -0.5 * x
+        sigmas = {"a": sig, "b": 2 * sig, "c": sig if delayed else 0.5 * sig}
+        ln = fit_line(fr, {"a": x, "b": 2 * x, "c": third}, sigmas, f0)
         est.append(ln["f_hz"])
         se.append(ln["f_se_hz"])
     spread, pred = float(np.std(est)), float(np.median(se))

@@ -499,8 +499,7 @@ def _frequency_se(t: np.ndarray, D: np.ndarray, ab: np.ndarray, s: list, h: np.n
     B = np.zeros((p, p))
     for i, (ii, Gi) in enumerate(G):
         for j, (jj, Gj) in enumerate(G):
-            if i == j or abs(rho[i, j]) > 0:
-                B[np.ix_(ii, jj)] += np.real((Gi.conj() * wk[:, None]).T @ Gj * rho[i, j]) / n
+            B[np.ix_(ii, jj)] += np.real((Gi.conj() * wk[:, None]).T @ Gj * rho[i, j]) / n
     try:
         Ai = np.linalg.inv(A)
     except np.linalg.LinAlgError:
