@@ -1004,15 +1004,18 @@ def test_the_parameters_refitted_alone_from_two_starts(monkeypatch, moved_cheape
     assert got.overrides == {"start": 0.3 if moved_cheaper else 0.0}
 
 
-@pytest.mark.parametrize("delay_reason, retried", [
-    ("explains -13 % of the residual excess (< 20 %)", True),
-    ("held-out improvement not significant (z = 1.00 <= 3.09; in u_y:lines 1.00 <= 3.92)", False)])
-def test_an_effect_hidden_by_a_larger_one_is_tried_again_beside_it(monkeypatch, delay_reason, retried):
+@pytest.mark.parametrize("delay_reason, retried, load_share", [
+    ("explains -13 % of the residual excess (< 20 %)", True, 0.6),
+    ("held-out improvement not significant (z = 1.00 <= 3.09; in u_y:lines 1.00 <= 3.92)", False, 0.6),
+    ("held-out improvement not significant (z = 1.00 <= 3.09; in u_y:lines 1.00 <= 3.92)", True, 0.95)])
+def test_an_effect_hidden_by_a_larger_one_is_tried_again_beside_it(monkeypatch, delay_reason, retried, load_share):
     """:func:`ssamb.closeloop.search._effect_search`, scripted: round 0 fits every effect (no
     signature names one); a load passes, a delay improves the held-out part significantly but
     fails by the share of the excess it explains beside the load's misfit. Round 1, on the base
     with the load, fits the delay again (and it passes there); a delay rejected as not
-    significant is not fitted again."""
+    significant is not fitted again. A load that explains at least ``sufficient_share`` (0.9) of
+    the excess ends round 0 before the delay is fitted: the delay is fitted first in round 1,
+    beside the load, whatever it would have scored against the residual the load dominates."""
     from types import SimpleNamespace
 
     from ssamb.closeloop import search as S
@@ -1039,8 +1042,9 @@ def test_an_effect_hidden_by_a_larger_one_is_tried_again_beside_it(monkeypatch, 
         reasons = [] if names[0] == "static_load" or rnd == 1 else [delay_reason]
         model = SimpleNamespace(name=names[0], params=["p"])
         fit = SimpleNamespace(theta=np.array([1.0]), se=np.array([0.1]))
+        share = load_share if names[0] == "static_load" else 0.9
         return Candidate(tuple(names), [model], model, fit, [{"name": names[0]}], {}, {"z": z, "z_group": z,
-                         "n_groups": 1, "explained": 0.9, "delta_chi2": 1.0}, reasons)
+                         "n_groups": 1, "explained": share, "delta_chi2": 1.0}, reasons)
 
     monkeypatch.setattr(S, "_round", lambda cmp, base, settings, rnd, rejected: (
         {"round": rnd, "ranking": [], "candidates": []}, [], None, ev))
@@ -1050,6 +1054,7 @@ def test_an_effect_hidden_by_a_larger_one_is_tried_again_beside_it(monkeypatch, 
     out = S.SearchResult()
     S._effect_search(cmp, FakeBase([]), settings, None, out, False, False)
     assert (1, "sensor_delay") in fitted if retried else (1, "sensor_delay") not in fitted
+    assert ((0, "sensor_delay") in fitted) == (load_share < settings.sufficient_share)
     assert [a["name"] for a in out.accepted] == (["static_load", "sensor_delay"] if retried else ["static_load"])
 
 

@@ -526,6 +526,11 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
             info["candidates"].append({**_entry(cand, rnd, settings), "all_parameters_free": True})
         if cand.passed:
             passing.append(cand)
+            if min(cand.score["explained"], 1.0) >= settings.sufficient_share and k + 1 < len(singles):
+                info["sufficient"] = cand.model.name
+                _log(progress, f"round {rnd}: {cand.model.name} explains {cand.score['explained']:.0%} of the "
+                               f"residual excess; {singles[k + 1:]} ranked again beside it")
+                break
         else:
             rejected[name] = rejected.get(name, 0) + 1
             # significant on held-out data and failed only by what another effect beside it can

@@ -42,6 +42,12 @@ class Settings:
         Most effects added by the greedy search.
     candidates_per_round : int
         Candidates fitted per greedy round (the best-ranked ones with significant evidence).
+    sufficient_share : float
+        A candidate that passes and explains at least this share of the held-out residual excess
+        ends its round's fits of single effects: the candidates ranked after it were ranked
+        against a residual it dominates, and are ranked again against the base with it in the
+        next round (the aliases of the chosen effect are still fitted beside it). 1 or more
+        fits every ranked candidate.
     line_search_max_hz : float
         Upper frequency of the search for lines the excitation does not contain.
     ripple_min_hz : float
@@ -177,6 +183,7 @@ class Settings:
     min_explained: float = 0.2
     max_effects: int = 3
     candidates_per_round: int = 3
+    sufficient_share: float = 0.9
     line_search_max_hz: float = 2000.0
     ripple_min_hz: float = 2000.0
     floor_position_m: float = 1e-10
