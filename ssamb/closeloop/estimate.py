@@ -841,6 +841,24 @@ def _no_progress(costs: list, window: int, margin: float) -> bool:
     return window > 0 and len(costs) > window and costs[-1 - window] - costs[-1] < margin
 
 
+def _local_model(prob: Problem, runs: list, theta: np.ndarray, C: np.ndarray, rhos: list, s: EstimateSettings):
+    """The local model at a centre: the surrogate Jacobian ``B`` and its noise from the pooled
+    runs (:func:`_surrogate`), the information and the determined directions (:func:`_information`),
+    with the directions a few entries of the residual determine (:func:`_concentrated`).
+
+    Returns ``(B, noise, info, keep, pending, n_local)``, ``n_local`` the directions the
+    concentration added."""
+    rho = float(np.mean(rhos))
+    B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, rho)
+    info, keep, pending = _information(B, noise, _scale(prob), s, prob.prior_sd)
+    n_global = keep.shape[1]
+    keep, B, noise = _concentrated(B, noise, _row_noise(C, prob.groups, rho), _scale(prob), keep, s, prob.prior_sd)
+    if keep.shape[1] > n_global:
+        sc = np.outer(_scale(prob), _scale(prob))
+        info = _psd((B.T @ B - noise) * sc) / sc
+    return B, noise, info, keep, pending, keep.shape[1] - n_global
+
+
 def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callable | None = None) -> MapFit:
     """Estimate ``prob`` (see module docstring)."""
     s = settings or EstimateSettings()
@@ -875,6 +893,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     a, trust, history, converged, replicates, probes, refresh, widened = C.mean(axis=0), 1.0, [], False, 0, 0, 0, 0
     d = np.zeros(len(theta))
     tried: list = []                    # the centre's cost at each step tried
+    best = (theta.copy(), float(a @ a), a, C, dropped)  # the best centre visited: fewest drops, then lowest cost
 
     def floor() -> float:
         # the cost the noise alone gives: unit data noise per whitened entry, and the anchor's
@@ -892,15 +911,9 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             its[-2]["chi2"] - its[-1]["chi2"] > 0.5 * (its[-2]["chi2"] - its[-2]["floor"])
         if it >= limit + (s.moving_iter if moving else 0):
             break
-        B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, float(np.mean(rhos)))
-        info, keep, pending = _information(B, noise, _scale(prob), s, prob.prior_sd)
-        n_global = keep.shape[1]
-        keep, B, noise = _concentrated(B, noise, _row_noise(C, prob.groups, float(np.mean(rhos))), _scale(prob),
-                                       keep, s, prob.prior_sd)
-        if keep.shape[1] > n_global:
-            info = _psd((B.T @ B - noise) * np.outer(_scale(prob), _scale(prob))) / np.outer(_scale(prob), _scale(prob))
-            if log is not None:
-                log(f"  {keep.shape[1] - n_global} direction(s) determined by a few entries of the residual")
+        B, noise, info, keep, pending, n_local = _local_model(prob, runs, theta, C, rhos, s)
+        if n_local and log is not None:
+            log(f"  {n_local} direction(s) determined by a few entries of the residual")
         grow = _unseen(prob, keep, s.probe_growth) if probes < s.max_probes and it < limit - 1 \
             else np.zeros(len(theta), bool)
         if grow.any():
@@ -1005,6 +1018,8 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             promised = float(a @ a - r_pred @ r_pred)
             good = promised <= 0 or float(a @ a - at @ at) >= 0.25 * promised
             theta, a, C, dropped = np.clip(theta + d, prob.lower, prob.upper), at, Ct, bad
+            if (dropped, float(a @ a)) < (best[4], best[1]):
+                best = (theta.copy(), float(a @ a), a, C, dropped)
             trust = min(s.max_trust, 2 * trust) if good else trust
             replicates = 0
             k, bad = _design(prob, theta, k, s, runs, log, base_step)
@@ -1013,6 +1028,18 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             trust = s.reject_shrink * min(trust, taken)     # the trial's runs stay in the pool and inform B along d
             if log is not None:
                 log(f"  step rejected (chi2 {at @ at:.1f}); trust region {trust:.3g}")
+    returned = None
+    if not converged and best[4] <= dropped and a @ a > best[1] + _margin(len(a), float(np.mean(rhos)) / max(
+            s.centre_runs, 1), best[1]):
+        # the iterations ran out after steps each within the noise of the cost had taken the
+        # centre significantly above the best one it visited: the estimate is that centre
+        if log is not None:
+            log(f"the last centre's cost {a @ a:.1f} is significantly above the best visited, {best[1]:.1f}: "
+                f"the estimate returns there")
+        theta, a, C = best[0], best[2], best[3]
+        B, noise, info, keep, pending, _ = _local_model(prob, runs, theta, C, rhos, s)
+        d, _ = _solve_step(a, B, info, keep, lam, theta, prob, s, trust, want_full=True)
+        returned = float(best[1])
     theta_hat = np.clip(theta + d, prob.lower, prob.upper) if converged else theta
     Cf, bad = _centre(prob, theta, k + 1, s, runs)
     infeasible += bad
@@ -1029,7 +1056,8 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     short = (not converged) and _far_above(float(a @ a), len(a), fl, s.short_alpha)
     if short and log is not None:
         log(f"stopped short: not converged, its cost {a @ a:.1f} is {a @ a / fl:.3g} times the noise floor {fl:.0f}")
-    history.append({"noise_factors": facs, "misfit_factors": facs_m, "infeasible": infeasible})
+    history.append({"noise_factors": facs, "misfit_factors": facs_m, "infeasible": infeasible,
+                    "returned_to_best": returned})
     return MapFit(theta=theta_hat, cov=cov, cov_misfit=cov_m, B=B, info=info, chi2=float(a @ a), n=len(a),
                   rho=float(np.mean(rhos)),
                   evaluations=len(runs) + infeasible, iterations=len(history) - 1, converged=converged,

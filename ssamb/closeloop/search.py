@@ -1161,6 +1161,10 @@ def optimum_of(fit, tol: float) -> dict:
     else:
         how = (f"the joint refit did NOT converge: its iterations ran out with a step of {last:.2g} posterior standard "
                f"deviations per parameter (stop at {tol:g}); the step is added to the reported covariance")
+    back = next((h["returned_to_best"] for h in fit.history if h.get("returned_to_best") is not None), None)
+    if back is not None:
+        how += (f"; its last centre cost significantly more than the best it visited ({back:.1f}), where the estimate "
+                f"returned")
     return {"converged": bool(fit.converged), "stalled": bool(stalled), "no_progress": bool(rest),
-            "last_step_posterior_sd": float(last),
+            "returned_to_best": back, "last_step_posterior_sd": float(last),
             "tolerance": float(tol), "iterations": int(fit.iterations), "simulations": int(fit.evaluations), "how": how}
