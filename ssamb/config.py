@@ -71,7 +71,7 @@ def _validator():
     import jsonschema
 
     with open(SCHEMA_PATH, encoding="utf-8") as fh:
-        schema = yaml.safe_load(fh)
+        schema = yaml.load(fh, Loader=_YAML_LOADER)     # every process that checks a config reads it
     return jsonschema.validators.validator_for(schema)(schema)
 
 
