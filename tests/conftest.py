@@ -183,9 +183,9 @@ SMOKE_FIXTURES = ("smoke_workdir",)
 #: between the workers by its folder: the tests only read it)
 SHARED_FIXTURES = ("row1", "row2", "row3", "row4", "row5", "rig_pair", "heavier_rig", "chain", "workflow", "data",
                    "model", "plant_and_physics", "pid", "known")
-#: the costliest of them, costliest first (CPU time of their analyses: row 5 with its figures about
-#: 100 s, rows 4, 2, 3 and 1 60 to 45 s): their groups start first, so that the two workers end
-#: on the quick tests together and not one on a long analysis while the other idles
+#: the costliest of them, costliest first (their analyses' CPU times are on the validation page):
+#: their groups start first, so that the two workers end on the quick tests together and not one
+#: on a long analysis while the other idles
 LONGEST_FIRST = ("row5", "row4", "row2", "row3", "row1")
 _CONFIG = None
 #: the smoke runs this process started (it reaps them)
