@@ -11,6 +11,7 @@ from hypothesis import given, settings, strategies as st
 
 from ssamb.closeloop.calibration import identifiability
 from ssamb.closeloop.estimate import EstimateSettings, Problem, map_fit
+from ssamb.closeloop.models import EffectModel, basin_points
 from ssamb.closeloop.features import Whitener, _band_cov, features, line_phasors, make_layout
 from ssamb.closeloop.spectra import make_frame
 
@@ -1376,3 +1377,63 @@ def test_a_plotted_records_envelope_keeps_each_buckets_extremes_in_time_order(n,
     for a in range(0, n, size):
         inside = ye[(idx >= a) & (idx < a + size)]
         assert inside.min() == y[a:a + size].min() and inside.max() == y[a:a + size].max()
+
+
+def _periodic_effect(period: float = 1.0, grid_offset: float = 0.1) -> EffectModel:
+    """A one-parameter effect ``d`` whose cost has a basin every ``period`` (a delay's cost across
+    whole controller samples), with a coarse grid point in every basin."""
+    grid = tuple(np.array([k * period + grid_offset]) for k in range(5))
+    return EffectModel("toy", ("d",), np.zeros(1), np.array([0.01]), np.zeros(1), np.array([5.0]),
+                       lambda t: [], {}, grid)
+
+
+def test_basin_points_are_the_grid_and_each_parameter_along_it():
+    """Two parameters, a grid of three points: the grid's points, then each parameter at every
+    value the grid gives it with the other at the fit, less repeats and points within one step
+    of the fit in every parameter ((2, 3) beside the fit's (2, 3.05))."""
+    m = EffectModel("toy", ("a", "b"), np.zeros(2), np.array([0.1, 0.1]), np.zeros(2), np.full(2, 10.0),
+                    lambda t: [], {}, (np.array([1.0, 1.0]), np.array([2.0, 1.0]), np.array([1.0, 3.0])))
+    pts = [tuple(p) for p in basin_points(m, np.array([2.0, 3.05]))]
+    assert pts == [(1.0, 1.0), (2.0, 1.0), (1.0, 3.0), (1.0, 3.05)]
+    assert basin_points(dataclasses.replace(m, grid=()), np.array([2.0, 3.0])) == []
+
+
+def test_a_joint_fit_far_above_the_floor_is_refitted_from_its_other_basins():
+    """A calibrated parameter ``a`` (prior sd 1) and an effect ``d`` whose residual is periodic in
+    ``d`` with a slow trend, :math:`r = s\\,\\sin(2\\pi(d - d_0)) v + c (d - d_0) w + B(a - a_0)`:
+    a local minimum near every :math:`d_0 + k` whose cost grows with :math:`k^2`. A fit ending
+    two basins off stays far above the noise floor; :func:`ssamb.closeloop.search.other_basins`
+    refits from the grid's best points and keeps the one in the truth's basin (its cost at the
+    floor), and :func:`ssamb.closeloop.search.optimum_of` says so. A fit in the truth's basin is
+    returned as it is, without replays."""
+    from ssamb.closeloop.search import optimum_of, other_basins
+
+    rng = np.random.default_rng(11)
+    n = 240
+    v, w, b = (rng.standard_normal(n) / math.sqrt(n) for _ in range(3))
+    e_data = 0.5 * rng.standard_normal(n)
+    a0, d0 = 0.4, 0.13
+    calls = [0]
+
+    def evaluate(theta, seed):
+        calls[0] += 1
+        a, d = theta
+        e_m = 0.5 * np.random.default_rng(seed).standard_normal(n)
+        return 40.0 * np.sin(2 * np.pi * (d - d0)) * v + 20.0 * (d - d0) * w + 30.0 * (a - a0) * b + e_data + e_m
+
+    m = _periodic_effect()
+    prob = Problem(names=("a", "d"), theta0=np.zeros(2), prior_sd=np.array([1.0, np.inf]), step=np.array([0.05, 0.01]),
+                   lower=np.array([-5.0, 0.0]), upper=np.array([5.0, 5.0]), evaluate=evaluate, groups=[np.arange(n)])
+    est = EstimateSettings(max_iter=12)
+    cuts = np.array([1, 2])
+    prob.start = np.array([0.0, 2.1])
+    wrong = map_fit(prob, est)
+    assert abs(wrong.theta[1] - (d0 + 2)) < 0.1 and wrong.chi2 > 2 * wrong.floor
+    fit = other_basins(prob, [m], cuts, wrong, est, 2)
+    assert abs(fit.theta[1] - d0) < 0.02 and abs(fit.theta[0] - a0) < 0.05
+    assert fit.chi2 < 1.3 * fit.floor
+    basins = optimum_of(fit, 1.0)["other_basins"]
+    assert basins["taken"] is not None and basins["tried"][basins["taken"]]["cost"] < basins["from_cost"]
+    assert "another basin" in optimum_of(fit, 1.0)["how"]
+    before = calls[0]
+    assert other_basins(prob, [m], cuts, fit, est, 2) is fit and calls[0] == before

@@ -529,9 +529,10 @@ def alias_sd(prob, model, fit, k: int, replays: int = 4) -> np.ndarray:
 def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateSettings, seed0: int,
                   log=None, step_rel: float = 0.05, mirror: bool = True, start: str = "prior") -> Candidate:
     """Fit ``models`` (jointly) added to ``base`` on the fitting part, with the base's free
-    parameters; predict the whole record. ``mirror=False``: a single effect's fit is not moved to
-    its mirrors and aliases (a deliberate start stays where the fit from it ends; its spread over
-    them still counts, :func:`alias_sd`). ``start`` (``closeloop.candidate_start``): ``prior``, the
+    parameters; predict the whole record. ``mirror=False``: a deliberate start, from the models'
+    ``theta0``: a single effect's fit is neither started from its coarse grid nor moved to its
+    mirrors and aliases (it stays where the fit from it ends; its spread over them still counts,
+    :func:`alias_sd`). ``start`` (``closeloop.candidate_start``): ``prior``, the
     base's unidentified parameters at their prior mean (:class:`Base`); ``better``, where
     :func:`better_base_start` puts them (before a single effect's coarse grid is scored);
     ``rescue``, the prior start, and a fit left worse than no effect refitted (:func:`_rescued`).
@@ -546,12 +547,13 @@ def fit_candidate(cmp: Comparison, base: Base, models: list, settings: EstimateS
     try:
         if start == "better" and k:
             prob.start = better_base_start(prob, k, settings.centre_runs, log)
-        if len(models) == 1 and model.grid:
+        coarse = len(models) == 1 and bool(model.grid) and mirror
+        if coarse:
             prob.start = _coarse_start(prob, model, k)
         fit = map_fit(prob, settings, log)
         if start == "rescue":
             fit = _rescued(prob, model, fit, settings, k, log)
-        if len(models) == 1:
+        if coarse:
             fit = _regridded(prob, model, fit, settings, k, log)
         spread = None
         if len(models) == 1 and (model.mirrors is not None or model.aliases is not None):

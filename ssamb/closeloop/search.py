@@ -53,9 +53,10 @@ from scipy import stats
 
 from .calibration import Calibration, calibrate_model, identifiability, overrides_of
 from .comparison import Comparison
-from .estimate import EstimateSettings, Problem, map_fit
-from .fit import Base, Candidate, _scaled, fit_candidate, holdout_score, improvement_z, size_mask
-from .models import EffectModel, restart
+from .estimate import EstimateSettings, Problem, _far_above, map_fit
+from .fit import (Base, Candidate, _one_replay_costs, _one_replay_margin, _prior_cost, _scaled, fit_candidate,
+                  holdout_score, improvement_z, size_mask)
+from .models import EffectModel, basin_points, restart
 from .residual import compute_features
 from .signatures import claim_stat, evidence_all, rank
 
@@ -417,7 +418,9 @@ def _restarted(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int, se
     the local fit may have ended on the wrong side of a kink of the cost (a sensor delay a whole
     controller sample off on one axis); the evidence of the effect in the fit's residual says by
     how much. The refit starts there, with the calibrated parameters where the candidate's fit
-    left them, without the coarse grid and without moving to mirrors (:func:`_preferred` chooses).
+    left them, without the coarse grid and without moving to mirrors (a deliberate start,
+    :func:`ssamb.closeloop.fit.fit_candidate`; :func:`_preferred` chooses). The models keep their
+    grids for the joint refit's other basins (:func:`other_basins`).
     """
     import dataclasses
 
@@ -432,7 +435,7 @@ def _restarted(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int, se
         if t is not None:
             moved = True
             th = np.clip(t, m.lower, m.upper)
-        models.append(dataclasses.replace(m, theta0=th, grid=()))
+        models.append(dataclasses.replace(m, theta0=th))
     if not moved:
         return None
     k = cand.n_free
@@ -770,7 +773,9 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
     # the final model runs its extra iterations out (the progress window is for the calibration
     # and the candidates' screens)
     joint_est = dataclasses.replace(est, max_iter=settings.joint_iterations, short_progress_window=0)
-    fit = map_fit(prob, joint_est, (lambda m: _log(progress, "  joint " + m)) if progress else None)
+    log = (lambda m: _log(progress, "  joint " + m)) if progress else None
+    fit = map_fit(prob, joint_est, log)
+    fit = other_basins(prob, models, cuts, fit, joint_est, settings.joint_restarts, log)
     ident = identifiability(fit.info, prob.prior_sd, names, settings.identifiable_ratio, cov=fit.cov_misfit,
                             cov_noise=fit.cov, relative=tuple(sp.relative for sp in sub) + (False,) * sum(sizes))
     merged = dict(cal.ident)
@@ -778,6 +783,62 @@ def _joint(cmp: Comparison, cal: Calibration, accepted: list, settings, est, pro
     theta_cal[free] = fit.theta[: len(free)]
     ov, eff = build(fit.theta)
     return fit, theta_cal, ov, eff, models, cuts, merged
+
+
+def other_basins(prob: Problem, models: list, cuts: np.ndarray, fit, est: EstimateSettings, n: int, log=None):
+    r"""The joint refit, or its refit from another basin of an effect's cost when it ends far above
+    the noise floor.
+
+    A local fit does not cross the kinks of a cost that is far from quadratic over an effect's
+    range (a sensor delay's fraction of a controller sample, :attr:`ssamb.device.EffectModel.grid`):
+    a candidate fitted beside calibrated parameters far from the data (the unidentified ones at
+    their prior mean) can end in the wrong basin, where the joint refit keeps it and the
+    calibrated parameters absorb what they can of the rest. Such a final model stays far above
+    the noise floor: the cost beyond the upper ``short_alpha`` quantile of the noise alone
+    (:func:`ssamb.closeloop.estimate._far_above`, the test of a fit that stopped short). Then
+    every point of :func:`ssamb.closeloop.models.basin_points` of every effect, with the other
+    parameters at the fit, is replayed once with one seed shared by all, and the joint problem
+    is refitted from the ``n`` best that move each effect parameter by more than its step (a
+    two-axis delay with both axes in wrong basins: the best points moving one axis can all keep
+    the other where it is); a refit is kept when its posterior cost (misfit plus prior)
+    is below the best so far by more than two standard deviations of a difference of two fits'
+    costs (:func:`ssamb.closeloop.fit._one_replay_margin` for means of ``centre_runs`` replays).
+
+    ``models``: the effects' parameterisations, whose parameters are ``theta[cuts[i]:cuts[i+1]]``.
+    The fit kept has the search in its history (``other_basins``: the starts, their costs, the
+    one taken or None), which :func:`optimum_of` reports.
+    """
+    if n <= 0 or not _far_above(fit.chi2, fit.n, fit.floor, est.short_alpha):
+        return fit
+    pts = []
+    for m, lo, hi in zip(models, cuts[:-1], cuts[1:]):
+        for p in basin_points(m, fit.theta[lo:hi]):
+            t = fit.theta.copy()
+            t[lo:hi] = p
+            pts.append(np.clip(t, prob.lower, prob.upper))
+    if not pts:
+        return fit
+    chi2 = _one_replay_costs(prob.batch([(t, prob.seed0 + 995) for t in [fit.theta] + pts]))[1:]
+    order = []
+    for j in range(cuts[0], cuts[-1]):
+        moved = [i for i in np.argsort(chi2, kind="stable")
+                 if np.isfinite(chi2[i]) and abs(pts[i][j] - fit.theta[j]) > prob.step[j]]
+        order += [int(i) for i in moved[:n] if i not in order]
+    cost0 = fit.chi2 + _prior_cost(prob, fit.theta)
+    best, cost, taken, tried = fit, cost0, None, []
+    margin = _one_replay_margin(fit.n, est.centre_runs)
+    for i in order:
+        prob.start = pts[i]
+        other = map_fit(prob, est, log)
+        c = other.chi2 + _prior_cost(prob, other.theta)
+        tried.append({"start": pts[i].tolist(), "cost": float(c)})
+        if log is not None:
+            log(f"far above the noise floor (cost {cost0:.1f}, floor {fit.floor:.1f}): refitted from another basin, "
+                f"cost {c:.1f} against {cost:.1f}")
+        if c < cost - margin:
+            best, cost, taken = other, c, len(tried) - 1
+    best.history.append({"other_basins": {"from_cost": float(cost0), "tried": tried, "taken": taken}})
+    return best
 
 
 def _drop_null_effects(out: SearchResult, fit, models: list, cuts: np.ndarray, alpha: float, progress: bool) -> list:
@@ -1140,7 +1201,8 @@ def optimum_of(fit, tol: float) -> dict:
     """How the final model is known to be a local optimum of the joint problem (parameters and
     effects): the estimator stopped because its last Gauss-Newton step on the surrogate, in the
     posterior metric, was within ``tol`` posterior standard deviations per parameter (a step the
-    data cannot tell from no step), not because its iterations ran out."""
+    data cannot tell from no step), not because its iterations ran out. Where its cost stayed far
+    above the noise floor, the other basins it was refitted from (:func:`other_basins`)."""
     if fit is None:
         return {"converged": True, "how": "nothing was fitted"}
     steps = [h["step_norm"] for h in fit.history if "step_norm" in h]
@@ -1165,6 +1227,15 @@ def optimum_of(fit, tol: float) -> dict:
     if back is not None:
         how += (f"; its last centre cost significantly more than the best it visited ({back:.1f}), where the estimate "
                 f"returned")
+    basins = next((h["other_basins"] for h in fit.history if "other_basins" in h), None)
+    if basins is not None:
+        how += (f"; its cost far above the noise floor, it was refitted from {len(basins['tried'])} other basin(s) of "
+                f"its effects' coarse grids: ")
+        if basins["taken"] is None:
+            how += f"none lower than its posterior cost {basins['from_cost']:.1f}"
+        else:
+            how += (f"the final model is the refit from another basin, posterior cost "
+                    f"{basins['tried'][basins['taken']]['cost']:.1f} against {basins['from_cost']:.1f}")
     return {"converged": bool(fit.converged), "stalled": bool(stalled), "no_progress": bool(rest),
-            "returned_to_best": back, "last_step_posterior_sd": float(last),
+            "returned_to_best": back, "other_basins": basins, "last_step_posterior_sd": float(last),
             "tolerance": float(tol), "iterations": int(fit.iterations), "simulations": int(fit.evaluations), "how": how}

@@ -132,6 +132,10 @@ class Settings:
     joint_iterations : int
         Most Gauss-Newton iterations of the final joint refit (it starts from the fitted values
         and stops once converged; not capped by the estimator's ``max_iter``).
+    joint_restarts : int
+        Where the joint refit ends far above the noise floor, the number of other basins of the
+        accepted effects' coarse grids it is refitted from, per effect parameter
+        (:func:`ssamb.closeloop.search.other_basins`); 0: none.
     estimate : dict
         Settings of the estimator (:class:`ssamb.closeloop.estimate.EstimateSettings`).
     whirl_phase_min_deg : float
@@ -203,6 +207,7 @@ class Settings:
     candidate_iterations: int = 4
     candidate_start: str = "rescue"
     joint_iterations: int = 12
+    joint_restarts: int = 1
     estimate: dict = dataclasses.field(default_factory=dict)
     whirl_phase_min_deg: float = 10.0
     whirl_ratio_max: float = 5.0
