@@ -1437,3 +1437,14 @@ def test_a_joint_fit_far_above_the_floor_is_refitted_from_its_other_basins():
     assert "another basin" in optimum_of(fit, 1.0)["how"]
     before = calls[0]
     assert other_basins(prob, [m], cuts, fit, est, 2) is fit and calls[0] == before
+
+
+@pytest.mark.parametrize("axes", [["x"], ["y"], []])
+def test_a_static_load_is_fitted_on_both_axes_whatever_its_evidence(axes):
+    """The static load's parameterisation has both forces whichever axes its evidence named (the
+    calibrated parameters can hide a load's offset on one axis), and builds the load it is given."""
+    from ssamb.sim.effects import static_load
+
+    m = static_load.model({"axes": axes}, None, None)
+    assert m.params == ("fx_n", "fy_n")
+    assert m.build(np.array([2.0, -3.0])) == [{"name": "static_load", "fx_n": 2.0, "fy_n": -3.0}]
