@@ -556,6 +556,38 @@ def test_an_infeasible_start_falls_back_and_a_fit_cut_short_says_so():
     assert full.theta[0] == pytest.approx(3.0, abs=0.02)
 
 
+@pytest.mark.parametrize("wall, stage_points", [("axis", 8), ("joint", 16)])
+def test_an_infeasible_start_is_searched_for_in_the_prior(wall, stage_points):
+    """A start (the prior mean) where every replay drops the body, with no fallback, and a truth
+    at (1.5, 1.5) prior standard deviations where the body floats: the body floats only at
+    b > 1.2 (one parameter alone at 2 sd finds it) or only at a + b > 2.5 (no parameter alone
+    within 2 sd does; the Sobol points over +-2 sd do). The fit starts where the body floats and
+    reaches the truth; with no floating point in the prior's 2 sd it stays, unmoved, and says so."""
+    from ssamb.closeloop.estimate import feasible_start
+
+    N = 60
+    rng = np.random.default_rng(11)
+    cols = rng.standard_normal((N, 2)) * 10.0
+
+    def floats(theta):
+        return theta[1] > 1.2 if wall == "axis" else theta[0] + theta[1] > 2.5
+
+    def evaluate(theta, seed):
+        if not floats(theta):
+            return np.full(N, np.nan)
+        return cols @ (np.asarray(theta) - 1.5) + 0.2 * np.random.default_rng(seed).standard_normal(N)
+
+    def prob(ev=evaluate):
+        return Problem(("a", "b"), np.zeros(2), np.ones(2), np.full(2, 0.05), np.full(2, -5.0), np.full(2, 5.0), ev)
+    start, tried = feasible_start(prob(), np.zeros(2))
+    assert floats(start) and tried == stage_points
+    fit = map_fit(prob(), EstimateSettings(max_iter=12))
+    assert fit.infeasible >= 4
+    assert fit.theta == pytest.approx([1.5, 1.5], abs=0.05)
+    never = map_fit(prob(lambda theta, seed: np.full(N, np.nan)), EstimateSettings(max_iter=12))
+    assert np.all(never.theta == 0.0) and never.history == [{"infeasible_start": True}]
+
+
 def test_a_candidate_starts_from_its_base_as_it_is_only_when_that_costs_clearly_less():
     """:func:`ssamb.closeloop.fit.better_base_start`: a base parameter b (prior sd 1, mean 0) the
     data put at 0.8 and an effect e started at 1.5. With the base at b = 0.8 the mean residual's

@@ -822,6 +822,63 @@ def _far_above(chi2: float, n: int, floor: float, alpha: float) -> bool:
     return n > 0 and chi2 > floor / n * float(stats.chi2.isf(alpha, n))
 
 
+def feasible_start(prob: Problem, theta: np.ndarray, seeds: int = 2) -> tuple:
+    r"""A start about an infeasible ``theta`` where the replays float, from the prior's spread.
+
+    Where the measured body floats and the model's replay of the same excitation drops it, the
+    cost is undefined at the start and a local estimator has nowhere to go (a 55 um multisine
+    on both axes drops the nominal model of a rig whose bias current is 4 % higher, in every
+    replay, while the rig floats). The prior says how far the rig may be from the model, so the
+    start is searched for there, on common seeds: each parameter with a prior alone at
+    :math:`\theta_j \pm \sigma_j, \pm 2\sigma_j`, and, when none of those floats in every replay,
+    :math:`4p` points of a scrambled Sobol sequence over :math:`\theta \pm 2\sigma` (within the
+    bounds). Each point is replayed with the same ``seeds`` seeds and ranked by
+    :func:`drops_and_cost` (fewest drops, then the lowest cost of the others); the best is
+    returned if one of its replays floats. It is a start only: the fit moves from it under the
+    prior like from any other.
+
+    Returns
+    -------
+    (numpy.ndarray or None, int)
+        The start (None: no point floats) and the number of points replayed.
+    """
+    from scipy.stats import qmc
+
+    sd = np.asarray(prob.prior_sd, float)
+    free = np.flatnonzero(np.isfinite(sd))
+    if not len(free):
+        return None, 0
+    lo, hi = np.asarray(prob.lower, float), np.asarray(prob.upper, float)
+    points = []
+    for j in free:
+        for z in (1.0, -1.0, 2.0, -2.0):
+            th = theta.copy()
+            th[j] = np.clip(theta[j] + z * sd[j], lo[j], hi[j])
+            if th[j] != theta[j]:
+                points.append(th)
+    sobol = qmc.Sobol(len(free), scramble=True, seed=int(prob.seed0) % 2 ** 32)
+    box = sobol.random(int(2 ** np.ceil(np.log2(4 * len(free)))))[: 4 * len(free)] * 4.0 - 2.0
+    spread = [np.clip(_at(theta, free, u * sd[free]), lo, hi) for u in box]
+    tried, best = 0, (None, (seeds, float("inf")))
+    for stage in (points, spread):
+        res = prob.batch([(th, prob.seed0 + 670_000 + j) for th in stage for j in range(seeds)])
+        for i, th in enumerate(stage):
+            score = drops_and_cost(res[i * seeds:(i + 1) * seeds])
+            if score < best[1]:
+                best = (th, score)
+        tried += len(stage)
+        if best[1][0] == 0:
+            break
+    return (best[0] if best[1][0] < seeds else None), tried
+
+
+def _at(theta: np.ndarray, idx: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """``theta`` with ``delta`` added at ``idx``."""
+    out = np.asarray(theta, float).copy()
+    out[idx] += delta
+    return out
+
+
 def _unmoved(prob: Problem, theta: np.ndarray, lam: np.ndarray, C: np.ndarray, infeasible: int, s) -> MapFit:
     """The result of a fit whose start is infeasible (fewer than two feasible centre runs): the
     start, with the prior's covariance (no prior: unbounded) -- nothing was estimated."""
@@ -882,6 +939,16 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         C, bad = _centre(prob, theta, k, s, runs)
         infeasible += bad
         dropped = bad
+    if len(C) < 2:
+        found, screened = feasible_start(prob, theta)
+        if found is not None:
+            if log is not None:
+                log(f"the start is infeasible ({infeasible} replays at the start and its fallback hit a stop or leave "
+                    f"the physical domain): the best of {screened} points of the prior about it that float")
+            theta, k = found, k + 1
+            C, bad = _centre(prob, theta, k, s, runs)
+            infeasible += bad
+            dropped = bad
     if len(C) < 2:
         if log is not None:
             log(f"the start is infeasible ({infeasible} replays at the start and its fallback hit a stop or leave the "
