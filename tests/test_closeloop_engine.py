@@ -1480,3 +1480,66 @@ def test_a_static_load_is_fitted_on_both_axes_whatever_its_evidence(axes):
     m = static_load.model({"axes": axes}, None, None)
     assert m.params == ("fx_n", "fy_n")
     assert m.build(np.array([2.0, -3.0])) == [{"name": "static_load", "fx_n": 2.0, "fy_n": -3.0}]
+
+
+def test_model_averaged_errors_of_an_alternative_as_likely_as_the_choice():
+    """One alternative at BIC change 0 (weight 1) three standard errors away, with the same
+    variance: the mixture's variance about the estimate is (1 + (1 + 9)) / 2 = 5.5; at a BIC
+    change of 100 it barely counts; a parameter it did not refit (NaN) and one it leaves where
+    the choice has it with a smaller variance keep the choice's error."""
+    from ssamb.closeloop.estimate import model_averaged_sd
+
+    theta, var = np.zeros(3), np.array([1.0, 4.0, 1.0])
+    alt = (np.array([3.0, np.nan, 0.0]), np.array([1.0, np.nan, 0.25]), 0.0)
+    sd, w = model_averaged_sd(theta, var, [alt])
+    assert w.tolist() == [1.0]
+    assert sd == pytest.approx([math.sqrt(5.5), 2.0, 1.0])
+    far = model_averaged_sd(theta, var, [(alt[0], alt[1], 100.0)])[0]
+    assert far[0] == pytest.approx(math.sqrt((1 + math.exp(-50) * 10) / (1 + math.exp(-50))))
+    assert model_averaged_sd(theta, var, [])[0] == pytest.approx(np.sqrt(var))
+
+
+@given(st.floats(-5, 5), st.floats(0.01, 10), st.floats(-20, 40), st.floats(0, 3))
+@settings(max_examples=60, deadline=None)
+def test_model_averaged_errors_never_shrink_and_grow_with_the_shift(shift, var_c, dbic, extra):
+    """Property: the averaged error is never below the chosen model's, and grows with the
+    distance of the alternative's estimate."""
+    from ssamb.closeloop.estimate import model_averaged_sd
+
+    a = model_averaged_sd(np.zeros(1), np.ones(1), [(np.array([shift]), np.array([var_c]), dbic)])[0][0]
+    b = model_averaged_sd(np.zeros(1), np.ones(1), [(np.array([abs(shift) + extra]), np.array([var_c]), dbic)])[0][0]
+    assert a >= 1.0 - 1e-12 and b >= a - 1e-12
+
+
+def test_averaged_errors_widen_what_a_rejected_candidate_moves_and_name_it():
+    """:func:`ssamb.closeloop.search.averaged_errors`: a last-round candidate as likely as the
+    final model by BIC (its base's misfit 4 per entry divides its change of -8 to -2) that moves
+    an offset (absolute, tolerance 1e-5) by 8e-6 against a standard error of 1e-6: the error
+    grows beyond a third of the tolerance, the offset is no longer identified and the candidate
+    is named; a gain it leaves alone keeps its error; a candidate whose replays drop the body
+    does not count."""
+    from types import SimpleNamespace as NS
+
+    from ssamb.closeloop.calibration import ParameterSpec
+    from ssamb.closeloop.search import averaged_errors
+
+    specs = [ParameterSpec("offset_m", 0.0, False, 1e-5), ParameterSpec("gain", 1.0, True, 0.03)]
+    ident = {"per_parameter": {"offset_m": {"se": 1e-6, "identified": True, "reason": None},
+                               "gain": {"se": 0.002, "identified": True, "reason": None}}}
+
+    def cand(dx, drop):
+        fit = NS(theta=np.array([dx, 0.0, 2e-7]), cov=np.diag([1e-12, 4e-6, 1e-14]))
+        return NS(fit=fit, names=("amplifier_deadtime",), pred={"delevitated_share": drop},
+                  score={"delta_bic": -8.0, "chi2_fit_before": 4000.0, "n_fit": 1000})
+    rounds = [{"fits": [(("offset_m", "gain"), cand(8e-6, 0.0))]}]
+    out = averaged_errors(ident, specs, np.zeros(2), rounds, 1 / 3)
+    off, gain = out["per_parameter"]["offset_m"], out["per_parameter"]["gain"]
+    w = math.exp(1.0)
+    assert off["se"] == pytest.approx(math.sqrt((1e-12 + w * (1e-12 + 64e-12)) / (1 + w)))
+    assert off["se_within_model"] == 1e-6 and not off["identified"] and "amplifier_deadtime" in off["reason"]
+    assert gain["se"] == 0.002 and gain["identified"] and "se_within_model" not in gain
+    assert out["averaged_over"] == [{"candidate": "amplifier_deadtime", "delta_bic": -2.0, "weight": pytest.approx(w)}]
+    assert ident["per_parameter"]["offset_m"]["se"] == 1e-6          # the input is not changed
+    dropped = averaged_errors(ident, specs, np.zeros(2), [{"fits": [(("offset_m", "gain"), cand(8e-6, 1.0))]}],
+                              1 / 3)
+    assert dropped is ident

@@ -9,7 +9,9 @@ parameters the data identify, keyed by dotted config key: ``value``, ``se``, ``n
 per-effect ``uncertainty``, ``fit`` and ``rivals`` (the effects the data cannot tell from it,
 :func:`ssamb.closeloop.search.champion`); ``calibration`` (every calibratable parameter's
 estimate, tolerance and verdict, the sensitivity matrix's rank, condition and identified
-combinations, the error the calibration alone removes); ``remaining_signature`` (what is left
+combinations, the error the calibration alone removes; with ``averaged_over``, the rejected
+candidates whose fits widened the errors, each parameter's ``se_within_model`` beside them);
+``remaining_signature`` (what is left
 when the residual is not consistent with noise), ``evidence`` (the ranking before any fitting),
 ``rounds`` (every candidate tried and why it was accepted or rejected), ``noise``, ``data``,
 ``timing``, ``misfit`` (the final model's held-out chi-square per entry against the noise, per
@@ -77,6 +79,8 @@ def _calibration(search, sigma, meas_v, hold, nominal_v, dev) -> dict:
                     "z_from_nominal": float(t / s.prior_sd), "se_alone": d["se_alone"] * scale,
                     "partner": d["partner"], "correlation": d["correlation"], "reason": d["reason"],
                     "conflict": s.key in cal.conflicts})
+        if "se_within_model" in d:       # widened over the candidates the data do not exclude
+            per[-1]["se_within_model"] = d["se_within_model"] * scale
     red = _error_reduction(meas_v, [nominal_v, dev.views(search.calibrated)], hold, sigma, dev.view_names)[0]
     block = {"parameters": per, "rank": ident["rank"], "n_parameters": ident["n_parameters"],
              "condition": ident["condition"], "singular_values": ident["singular_values"],
@@ -88,6 +92,8 @@ def _calibration(search, sigma, meas_v, hold, nominal_v, dev) -> dict:
              "infeasible_replays": int(cal.fit.infeasible) if cal.fit else 0}
     if cal.restarts:
         block["restarts"] = cal.restarts
+    if ident.get("averaged_over"):
+        block["averaged_over"] = ident["averaged_over"]
     return block, params, not_ident
 
 

@@ -310,6 +310,13 @@ def _entry(cand: Candidate, rnd: int, settings) -> dict:
             "reasons": list(cand.reasons)}
 
 
+def _record(info: dict, cand: Candidate, base: Base, rnd: int, settings, **flags) -> None:
+    """Log a fitted candidate in its round (``candidates``, reported) and keep its fit with the
+    keys of the parameters refitted beside it (``fits``, for :func:`averaged_errors`)."""
+    info["candidates"].append({**_entry(cand, rnd, settings), **flags})
+    info.setdefault("fits", []).append((tuple(sp.key for sp in base.free), cand))
+
+
 def _round(cmp, base, settings, rnd, rejected):
     """One round: evidence, candidates fitted and judged. Returns ``(info, best or None, ft, ev)``."""
     ft = _features(cmp, cmp.fit.frame, (base.shown or base).pred, settings)
@@ -517,7 +524,7 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
     for k, name in enumerate(singles):
         cand = _try(cmp, base, [name], ev, rec, settings, est, 10_000 * (rnd + 1) + 100 * k, ft, measured_contact,
                     progress)
-        info["candidates"].append(_entry(cand, rnd, settings))
+        _record(info, cand, base, rnd, settings)
         if base.spare and _worth_refining(cand, settings):
             # passed, or nearly: the unidentified parameters may hold part of the effect, so the
             # fit on the identified ones (a cheap screen) is refined with every calibrated
@@ -526,7 +533,7 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
             # candidates are refitted
             cand = _try(cmp, base.widened(), [name], ev, rec, settings, est,
                         10_000 * (rnd + 1) + 100 * k + 50, ft, measured_contact, progress)
-            info["candidates"].append({**_entry(cand, rnd, settings), "all_parameters_free": True})
+            _record(info, cand, base.widened(), rnd, settings, all_parameters_free=True)
         if cand.passed:
             passing.append(cand)
             if min(cand.score["explained"], 1.0) >= settings.sufficient_share and k + 1 < len(singles):
@@ -557,7 +564,7 @@ def _candidates(cmp, base, order, ev, ft, info, settings, est, rnd, measured_con
                 continue
             cand = _try(cmp, base, names, ev, rec, settings, est, 10_000 * (rnd + 1) + 5000 + 100 * j, ft,
                         measured_contact, progress, starts=starts)
-            info["candidates"].append(_entry(cand, rnd, settings))
+            _record(info, cand, base, rnd, settings)
             if cand.passed:
                 passing.append(cand)
     return passing
@@ -587,7 +594,7 @@ def _fit_each(cmp, base, names, ev, ft, info, settings, est, rnd, measured_conta
     for j, name in enumerate(names):
         cand = _try(cmp, base, [name], ev, cmp.record, settings, est, 10_000 * (rnd + 1) + seed_block + 100 * j, ft,
                     measured_contact, progress)
-        info["candidates"].append({**_entry(cand, rnd, settings), flag: True})
+        _record(info, cand, base, rnd, settings, **{flag: True})
         if cand.passed:
             out.append(cand)
     return out
@@ -1189,12 +1196,68 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
                                     settings.identifiable_ratio, cov=cal.fit.cov_misfit, cov_noise=cal.fit.cov,
                                     relative=tuple(sp.relative for sp in specs))
         out.joint = {"fit": cal.fit, "ident": ident, "theta_cal": cal.theta}
+    if settings.average_alternatives:
+        ident = averaged_errors(ident, specs, out.joint["theta_cal"], out.rounds, settings.identifiable_ratio)
+        out.joint["ident"] = ident
     for a in out.accepted:
         sig = (np.abs(a["theta"]) > 3 * a["se"]) & (np.abs(a["theta"]) > 1e-3 * a["model"].step)
         a["entries"] = cmp.device.report_entries(a["model"], a["theta"], a["se"], sig)
     out.misfit = misfit(cmp, Base(out.overrides, out.effects, out.final))
     out.optimum = optimum_of(out.joint.get("fit"), EstimateSettings(**settings.estimate).tol)
     return out
+
+
+def averaged_errors(ident: dict, specs: list, theta: np.ndarray, rounds: list, ratio: float) -> dict:
+    """``ident`` with the calibrated parameters' standard errors over the models the data do not
+    exclude (:func:`ssamb.closeloop.estimate.model_averaged_sd`): the final model and each
+    candidate of the search's last round, which were all fitted beside it and rejected.
+
+    A candidate's BIC change is read in units of its base's misfit (its fitting chi-square over
+    its entries, when above one: far from the noise every change of parameters moves the BIC by
+    more than the evidence means), and a candidate whose replays drop the body does not count. A
+    parameter whose error grows beyond ``ratio`` of its tolerance is no longer identified, and
+    its reason names the candidates. ``averaged_over`` lists them with their weights.
+    """
+    from .estimate import model_averaged_sd
+
+    fits = [(keys, c) for keys, c in (rounds[-1].get("fits") or [] if rounds else [])
+            if c.fit is not None and c.score and np.all(np.isfinite(c.fit.theta))
+            and c.pred.get("delevitated_share", float(bool(c.pred.get("delevitated")))) <= 0.5]
+    if not fits or not specs:
+        return ident
+    per = ident["per_parameter"]
+    names = [sp.key for sp in specs]
+    var = np.array([per[k]["se"] ** 2 for k in names])
+    alts, labels = [], []
+    for keys, c in fits:
+        th, v = np.full(len(names), np.nan), np.full(len(names), np.nan)
+        for i, k in enumerate(keys):
+            if k in names:
+                th[names.index(k)], v[names.index(k)] = c.fit.theta[i], c.fit.cov[i, i]
+        f = max(1.0, c.score["chi2_fit_before"] / max(c.score["n_fit"], 1))
+        alts.append((th, v, c.score["delta_bic"] / f))
+        labels.append("+".join(c.names))
+    sd, w = model_averaged_sd(np.asarray(theta, float), var, alts)
+    out = {**ident, "per_parameter": {k: dict(d) for k, d in per.items()},
+           "averaged_over": [{"candidate": n, "delta_bic": float(a[2]), "weight": float(x)}
+                             for n, a, x in zip(labels, alts, w)]}
+    heavy = [n for n, x in zip(labels, w) if x >= 0.01]
+    for k, s_new, sp in zip(names, sd, specs):
+        d = out["per_parameter"][k]
+        if s_new > d["se"]:
+            d["se_within_model"], d["se"] = d["se"], float(s_new)
+            if d["identified"] and s_new > ratio * sp.prior_sd:
+                d["identified"] = False
+                fmt = _pct_or_abs(sp)
+                d["reason"] = (f"known to +-{fmt(d['se_within_model'])} in the final model, but only to "
+                               f"+-{fmt(s_new)} over the effects the data cannot exclude ({', '.join(heavy)}; "
+                               f"tolerance +-{fmt(sp.prior_sd)})")
+    return out
+
+
+def _pct_or_abs(spec):
+    """How an uncertainty of ``spec`` is written: per cent of a relative parameter, else its unit."""
+    return (lambda x: f"{100 * x:.2g} %") if spec.relative else (lambda x: f"{x:.2g}")
 
 
 def optimum_of(fit, tol: float) -> dict:

@@ -136,6 +136,11 @@ class Settings:
         Where the joint refit ends far above the noise floor, the number of other basins of the
         accepted effects' coarse grids it is refitted from, per effect parameter
         (:func:`ssamb.closeloop.search.other_basins`); 0: none.
+    average_alternatives : bool
+        Report the calibrated parameters' standard errors over the final model and the candidates
+        of the search's last round, weighted by their BIC (:func:`ssamb.closeloop.search.averaged_errors`):
+        an effect the held-out test could not confirm but the data do not exclude widens the
+        errors of the parameters it moves. False: the final model's errors alone.
     estimate : dict
         Settings of the estimator (:class:`ssamb.closeloop.estimate.EstimateSettings`).
     whirl_phase_min_deg : float
@@ -208,6 +213,7 @@ class Settings:
     candidate_start: str = "rescue"
     joint_iterations: int = 12
     joint_restarts: int = 1
+    average_alternatives: bool = True
     estimate: dict = dataclasses.field(default_factory=dict)
     whirl_phase_min_deg: float = 10.0
     whirl_ratio_max: float = 5.0
