@@ -1097,7 +1097,7 @@ def test_an_effect_hidden_by_a_larger_one_is_tried_again_beside_it(monkeypatch, 
 
     class FakeBase:
         def __init__(self, effects):
-            self.effects, self.shown, self.spare = effects, None, []
+            self.effects, self.shown, self.spare, self.free = effects, None, [], []
 
         def after(self, cand):
             return FakeBase(self.effects + [{"name": n} for n in cand.names])
