@@ -1543,3 +1543,26 @@ def test_averaged_errors_widen_what_a_rejected_candidate_moves_and_name_it():
     dropped = averaged_errors(ident, specs, np.zeros(2), [{"fits": [(("offset_m", "gain"), cand(8e-6, 1.0))]}],
                               1 / 3)
     assert dropped is ident
+
+
+@pytest.mark.parametrize("x0, x1, z, expect", [
+    (300.0, 110.0, 1.0, (300.0, 110.0, 100)),      # above the noise: as it is
+    (95.0, 60.0, 4.5, (95.0, 60.0, 60.0)),        # below the noise the data estimate, improved beyond 3.29
+    (130.0, 105.0, 4.5, (130.0, 105.0, 100)),     # above its entries, improved: the noise is the entries
+    (95.0, 60.0, 3.0, None),                      # improved, not beyond the Bonferroni level over 10 groups
+    (120.0, 100.0, 1.0, None),                    # neither
+])
+def test_a_group_counts_in_the_share_when_above_the_noise_or_significantly_improved(x0, x1, z, expect):
+    """:func:`ssamb.closeloop.fit.counted_group`, 100 entries in one of 10 groups: the level of a
+    group's improvement is alpha_accept / 10 (z 3.29); above the noise is 2 x the entries or a
+    chi-square beyond alpha_noise / 10. A significantly improved group's excess is at least what
+    the candidate removed there, and with it the share of the excess is 1."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop.fit import counted_group, excess_share
+
+    s = SimpleNamespace(above_noise=2.0, alpha_noise=1e-3, alpha_accept=1e-3)
+    got = counted_group(x0, x1, 100, z, 10, s)
+    assert got == expect
+    if got is not None and got[2] == x1:
+        assert excess_share([got]) == 1.0

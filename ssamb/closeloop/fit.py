@@ -27,7 +27,9 @@ predictions' noise in all :math:`N` entries can hide an improvement in a few (a 
 the currents). The share of the residual excess over the noise that the candidate removes is
 taken over the groups that stood clearly above the noise (:math:`\chi^2_g >` ``above_noise``
 :math:`n_g`, or a chi-square significant at ``alpha_noise`` over the groups: an excess can be
-significant and much smaller than its entries), as a ratio of sums or as the mean of the
+significant and much smaller than its entries), and those the candidate improves beyond
+``z_group``'s level (their excess at least what it removed there: :math:`n_g` is then taken as
+:math:`\min(n_g, \chi^2_{1,g})`), as a ratio of sums or as the mean of the
 groups' own shares (``excess_share``, :func:`excess_share`);
 a view is made worse when its :math:`\chi^2` grows by more than ``worse_sigma`` standard
 deviations of the difference of two noisy predictions' :math:`\chi^2`. With :math:`\bar r` the
@@ -234,6 +236,26 @@ def excess_share(groups, how: str = "sum") -> float:
     return float(removed / excess) if excess > 0 else 0.0
 
 
+def counted_group(x0: float, x1: float, n: int, z: float, n_groups: int, settings) -> tuple | None:
+    """Whether a group of ``n`` entries (chi-square ``x0`` before, ``x1`` after a candidate, its
+    improvement ``z``) counts in the share of the excess (module docstring), and as what:
+    ``(x0, x1, n)`` above the noise, ``(x0, x1, min(n, x1))`` improved beyond the Bonferroni
+    level over the ``n_groups`` groups, None otherwise.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as S
+    >>> s = S(above_noise=2.0, alpha_noise=1e-3, alpha_accept=1e-3)
+    >>> counted_group(300.0, 110.0, 100, 1.0, 10, s), counted_group(95.0, 60.0, 100, 4.5, 10, s)
+    ((300.0, 110.0, 100), (95.0, 60.0, 60.0))
+    """
+    if x0 > settings.above_noise * n or stats.chi2.sf(x0, n) < settings.alpha_noise / n_groups:
+        return x0, x1, n
+    if z > float(stats.norm.isf(settings.alpha_accept / max(n_groups, 1))):
+        return x0, x1, min(n, x1)
+    return None
+
+
 def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effects: list, n_params: int,
                   settings) -> dict:
     """Held-out comparison of a candidate (``overrides``, ``effects``, its prediction ``pred``)
@@ -255,7 +277,11 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
     # per group of entries (a view's DC, its windows, bands, lines): the same statistic, and the
     # share of the excess of every group clearly above the noise (many times its entries, or a
     # significant chi-square) -- an effect may sit in a few entries of a large view (a load in the
-    # DC of the currents) that the view's chi-square does not show
+    # DC of the currents) that the view's chi-square does not show. A group the model improves
+    # significantly (its z beyond the Bonferroni level over the groups) had an excess too, at
+    # least what it removed there: where a line the model lacks has raised the noise the data
+    # estimate beside it (an unbalance's line over an aperiodic excitation), no group stands
+    # above that noise, and without it every candidate would explain none of an excess there is
     groups = cmp.named_groups(cmp.hold)
     zg, per_group = {}, {}
     for name, g in groups.items():
@@ -263,8 +289,9 @@ def holdout_score(cmp: Comparison, base: Base, pred: dict, overrides: dict, effe
         vg = 4 * float(d[g] @ d[g]) + jackknife_variance(jk, g)
         zg[name] = (x0 - x1) / math.sqrt(vg) if vg > 0 else 0.0
         per_group[name] = {"chi2_before": x0, "chi2_after": x1, "n": n, "z": zg[name]}
-        if x0 > settings.above_noise * n or stats.chi2.sf(x0, n) < settings.alpha_noise / len(groups):
-            counted.append((x0, x1, n))
+        c = counted_group(x0, x1, n, zg[name], len(groups), settings)
+        if c is not None:
+            counted.append(c)
     best = max(zg, key=zg.get) if zg else None
     f0, f1 = _scaled(cmp, cmp.fit, base, pred, overrides, effects)
     dbic = float(f1 @ f1 - f0 @ f0 + n_params * math.log(len(f0)))
