@@ -903,6 +903,8 @@ def model_averaged_sd(theta: np.ndarray, var: np.ndarray, alternatives: list) ->
 
     Examples
     --------
+    >>> import numpy as np
+    >>> from ssamb.closeloop.estimate import model_averaged_sd
     >>> sd, w = model_averaged_sd(np.zeros(1), np.ones(1), [(np.array([3.0]), np.ones(1), 0.0)])
     >>> float(sd[0] ** 2), float(w[0])     # (1 + (1 + 9)) / 2
     (5.5, 1.0)

@@ -245,6 +245,7 @@ def counted_group(x0: float, x1: float, n: int, z: float, n_groups: int, setting
     Examples
     --------
     >>> from types import SimpleNamespace as S
+    >>> from ssamb.closeloop.fit import counted_group
     >>> s = S(above_noise=2.0, alpha_noise=1e-3, alpha_accept=1e-3)
     >>> counted_group(300.0, 110.0, 100, 1.0, 10, s), counted_group(95.0, 60.0, 100, 4.5, 10, s)
     ((300.0, 110.0, 100), (95.0, 60.0, 60.0))

@@ -1214,13 +1214,17 @@ def averaged_errors(ident: dict, specs: list, theta: np.ndarray, rounds: list, r
 
     A candidate's BIC change is read in units of its base's misfit (its fitting chi-square over
     its entries, when above one: far from the noise every change of parameters moves the BIC by
-    more than the evidence means), and a candidate whose replays drop the body does not count. A
+    more than the evidence means), a candidate whose replays drop the body does not count, and
+    a candidate refitted with every parameter free counts once, by its refit. A
     parameter whose error grows beyond ``ratio`` of its tolerance is no longer identified, and
     its reason names the candidates. ``averaged_over`` lists them with their weights.
     """
     from .estimate import model_averaged_sd
 
-    fits = [(keys, c) for keys, c in (rounds[-1].get("fits") or [] if rounds else [])
+    latest = {}                 # one alternative per effect: its last fit (with every parameter free, if refined)
+    for keys, c in (rounds[-1].get("fits") or [] if rounds else []):
+        latest["+".join(c.names)] = (keys, c)
+    fits = [(keys, c) for keys, c in latest.values()
             if c.fit is not None and c.score and np.all(np.isfinite(c.fit.theta))
             and c.pred.get("delevitated_share", float(bool(c.pred.get("delevitated")))) <= 0.5]
     if not fits or not specs:
