@@ -1517,7 +1517,7 @@ def test_averaged_errors_widen_what_a_rejected_candidate_moves_and_name_it():
     an offset (absolute, tolerance 1e-5) by 8e-6 against a standard error of 1e-6: the error
     grows beyond a third of the tolerance, the offset is no longer identified and the candidate
     is named; a gain it leaves alone keeps its error; a candidate whose replays drop the body
-    does not count."""
+    does not count; a candidate refined with every parameter free counts once, by its refit."""
     from types import SimpleNamespace as NS
 
     from ssamb.closeloop.calibration import ParameterSpec
@@ -1543,6 +1543,9 @@ def test_averaged_errors_widen_what_a_rejected_candidate_moves_and_name_it():
     dropped = averaged_errors(ident, specs, np.zeros(2), [{"fits": [(("offset_m", "gain"), cand(8e-6, 1.0))]}],
                               1 / 3)
     assert dropped is ident
+    refined = averaged_errors(ident, specs, np.zeros(2), [{"fits": [(("offset_m",), cand(8e-6, 0.0)),
+                                                                     (("offset_m", "gain"), cand(0.0, 0.0))]}], 1 / 3)
+    assert refined["per_parameter"]["offset_m"]["se"] == pytest.approx(1e-6) and len(refined["averaged_over"]) == 1
 
 
 @pytest.mark.parametrize("x0, x1, z, expect", [
