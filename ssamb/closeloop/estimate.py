@@ -64,6 +64,7 @@ standard errors off). This module therefore never compares single evaluations:
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -1244,7 +1245,8 @@ def common_seeds_fit(prob: Problem, settings: EstimateSettings, log: Callable | 
     floating a cost above any that floats). It starts from the start, or from
     :attr:`Problem.fallback` when most replays drop the body at the start and fewer at the fallback
     (a candidate whose unidentified parameters start at their prior mean, on a device whose
-    nominal model drops the body). The solution replaces the start only when it is no worse on
+    nominal model drops the body), and from the best point of the prior about it that floats when
+    most still drop there (:func:`feasible_start`). The solution replaces the start only when it is no worse on
     ``2 centre_runs`` fresh seeds (:func:`drops_and_cost`: fewer drops, then a lower cost): the
     fresh seeds judge it by the problem's noise, not by the realisation it was fitted to.
 
@@ -1291,8 +1293,10 @@ def common_seeds_fit(prob: Problem, settings: EstimateSettings, log: Callable | 
 
     def score(th):
         rs = prob.batch([(th, sd_) for sd_ in fresh])
+        out = drops_and_cost(rs)
         count["runs"] += len(rs)
-        return drops_and_cost(rs)
+        count["infeasible"] += out[0]
+        return out
     before = score(start)
     if prob.fallback is not None and before[0] > s.centre_runs:
         # most replays at the start drop the body: the fallback, a point known to float, if it does
@@ -1300,6 +1304,16 @@ def common_seeds_fit(prob: Problem, settings: EstimateSettings, log: Callable | 
         at_fb = score(fb)
         if at_fb < before:
             start, before = fb, at_fb
+    if before[0] > s.centre_runs:
+        # still most: a point of the prior about the start that floats (:func:`feasible_start`)
+        found, screened = feasible_start(prob, start)
+        count["runs"] += 2 * screened
+        if found is not None:
+            at_found = score(found)
+            if at_found < before:
+                start, before = found, at_found
+                if log is not None:
+                    log(f"the start drops the body: the best of {screened} points of the prior about it that float")
     lo, hi = prob.lower / scale, prob.upper / scale
     x0 = np.clip(start / scale, lo, hi)
     res = least_squares(fun, x0, bounds=(lo, np.maximum(hi, lo + 1e-12)), diff_step=1e-3,
@@ -1343,7 +1357,7 @@ def common_seeds_fit(prob: Problem, settings: EstimateSettings, log: Callable | 
     d = -cov @ g
     H = info + np.diag(lam)
     norm = float(np.sqrt(max(d @ H @ d, 0.0) / max(p, 1)))
-    converged = bool(res.status > 0) and keep
+    converged = bool(res.status > 0) and keep and math.isfinite(after[1])    # not where nothing floats
     short = (not converged) and _far_above(chi2, n, fl, s.short_alpha)
     history = [{"iteration": 0, "theta": start.tolist(), "chi2": float(before[1]), "common_seeds": S},
                {"iteration": 1, "theta": theta.tolist(), "chi2": chi2, "rho": rho, "step_norm": norm,
