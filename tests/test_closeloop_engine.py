@@ -1573,3 +1573,45 @@ def test_a_group_counts_in_the_share_when_above_the_noise_or_significantly_impro
     assert got == expect
     if got is not None and got[2] == x1:
         assert excess_share([got]) == 1.0
+
+
+@pytest.mark.parametrize("converged, z, reasons, continued", [
+    (False, 8.0, ["makes c_y worse"], True),
+    (True, 8.0, ["makes c_y worse"], False),                    # a converged fit is where it ends
+    (False, 1.0, ["makes c_y worse"], False),                   # no significant improvement to keep
+    (False, 8.0, ["makes c_y worse", "BIC does not drop (3.0)"], False),
+    (False, 8.0, [], False),                                    # passed
+])
+def test_a_significant_screen_rejected_for_a_view_it_makes_worse_is_continued(monkeypatch, converged, z, reasons,
+                                                                               continued):
+    """:func:`ssamb.closeloop.search._continued`: only an unconverged screen that improves the
+    held-out part significantly and fails only by views it makes worse is fitted on, from its
+    own estimate (the effect's and the refitted parameters'), without the coarse grid."""
+    from types import SimpleNamespace
+
+    from ssamb.closeloop import search as S
+    from ssamb.closeloop.fit import Base, Candidate
+    from ssamb.closeloop.settings import Settings
+
+    calls = []
+
+    def fake_fit(cmp, base, models, est, seed0, step_rel=0.05, log=None, mirror=True, **k):
+        calls.append((base.theta_free.tolist(), [m.theta0.tolist() for m in models], mirror))
+        return Candidate(("sensor_delay",), models, models[0], SimpleNamespace(converged=True), [])
+    monkeypatch.setattr(S, "fit_candidate", fake_fit)
+    @dataclasses.dataclass
+    class Model:                # the fields of an EffectModel the continuation reads
+        name: str
+        params: list
+        lower: np.ndarray
+        upper: np.ndarray
+        theta0: np.ndarray
+    model = Model("sensor_delay", ["delay_x_s", "delay_y_s"], np.zeros(2), np.full(2, 1e-4), np.zeros(2))
+    fit = SimpleNamespace(theta=np.array([0.01, 0.0, 44.7e-6]), converged=converged, iterations=4)
+    cand = Candidate(("sensor_delay",), [model], model, fit, [], score={"z": z, "z_group": z, "n_groups": 1},
+                     reasons=list(reasons), n_free=1)
+    base = Base({}, [], {}, [None], np.zeros(1))
+    out = S._continued(None, base, cand, None, 1, Settings())
+    assert (out is not None) == continued
+    if continued:
+        assert calls == [([0.01], [[0.0, 44.7e-6]], False)]
