@@ -939,7 +939,7 @@ def _passing(name: str, value: float):
 
     return SimpleNamespace(names=(name,), model=SimpleNamespace(name=name, params=("size",)),
                            fit=SimpleNamespace(theta=np.array([0.1, value]), se=np.array([0.01, value / 10])),
-                           n_free=1, overrides={}, effects=[], pred={"name": name}, passed=True)
+                           n_free=1, overrides={}, effects=[], pred={"name": name}, passed=True, score={})
 
 
 @pytest.mark.parametrize("z_table, choice, rivals", [
@@ -1525,17 +1525,21 @@ def test_averaged_errors_widen_what_a_rejected_candidate_moves_and_name_it():
     from types import SimpleNamespace as NS
 
     from ssamb.closeloop.calibration import ParameterSpec
+    from ssamb.closeloop import search as S
     from ssamb.closeloop.search import averaged_errors
 
     specs = [ParameterSpec("offset_m", 0.0, False, 1e-5), ParameterSpec("gain", 1.0, True, 0.03)]
     ident = {"per_parameter": {"offset_m": {"se": 1e-6, "identified": True, "reason": None},
                                "gain": {"se": 0.002, "identified": True, "reason": None}}}
 
-    def cand(dx, drop):
-        fit = NS(theta=np.array([dx, 0.0, 2e-7]), cov=np.diag([1e-12, 4e-6, 1e-14]))
-        return NS(fit=fit, names=("amplifier_deadtime",), pred={"delevitated_share": drop},
-                  score={"delta_bic": -8.0, "chi2_fit_before": 4000.0, "n_fit": 1000})
-    rounds = [{"fits": [(("offset_m", "gain"), cand(8e-6, 0.0))]}]
+    def cand(dx, drop, keys=("offset_m", "gain")):
+        fit = NS(theta=np.array([dx, 0.0, 2e-7][: len(keys)] + [2e-7]), cov=np.diag([1e-12, 4e-6, 1e-14][: len(keys)]
+                                                                                     + [1e-14]))
+        c = NS(fit=fit, names=("amplifier_deadtime",), pred={"delevitated_share": drop}, n_free=len(keys),
+               score={"delta_bic": -8.0, "chi2_fit_before": 4000.0, "n_fit": 1000})
+        return S._alternative(c, NS(free=[NS(key=k) for k in keys]))
+    assert cand(8e-6, 1.0) is None                  # its replays drop the body: no alternative
+    rounds = [{"fits": [cand(8e-6, 0.0)]}]
     out = averaged_errors(ident, specs, np.zeros(2), rounds, 1 / 3)
     off, gain = out["per_parameter"]["offset_m"], out["per_parameter"]["gain"]
     w = math.exp(1.0)
@@ -1544,11 +1548,9 @@ def test_averaged_errors_widen_what_a_rejected_candidate_moves_and_name_it():
     assert gain["se"] == 0.002 and gain["identified"] and "se_within_model" not in gain
     assert out["averaged_over"] == [{"candidate": "amplifier_deadtime", "delta_bic": -2.0, "weight": pytest.approx(w)}]
     assert ident["per_parameter"]["offset_m"]["se"] == 1e-6          # the input is not changed
-    dropped = averaged_errors(ident, specs, np.zeros(2), [{"fits": [(("offset_m", "gain"), cand(8e-6, 1.0))]}],
-                              1 / 3)
-    assert dropped is ident
-    refined = averaged_errors(ident, specs, np.zeros(2), [{"fits": [(("offset_m",), cand(8e-6, 0.0)),
-                                                                     (("offset_m", "gain"), cand(0.0, 0.0))]}], 1 / 3)
+    assert averaged_errors(ident, specs, np.zeros(2), [{"round": 0, "candidates": []}], 1 / 3) is ident
+    refined = averaged_errors(ident, specs, np.zeros(2), [{"fits": [cand(8e-6, 0.0, ("offset_m",)),
+                                                                     cand(0.0, 0.0)]}], 1 / 3)
     assert refined["per_parameter"]["offset_m"]["se"] == pytest.approx(1e-6) and len(refined["averaged_over"]) == 1
 
 

@@ -827,9 +827,9 @@ def feasible_start(prob: Problem, theta: np.ndarray, seeds: int = 2) -> tuple:
     r"""A start about an infeasible ``theta`` where the replays float, from the prior's spread.
 
     Where the measured body floats and the model's replay of the same excitation drops it, the
-    cost is undefined at the start and a local estimator has nowhere to go (a 55 um multisine
-    on both axes drops the nominal model of a rig whose bias current is 4 % higher, in every
-    replay, while the rig floats). The prior says how far the rig may be from the model, so the
+    cost is undefined at the start and a local estimator has nowhere to go (a large excitation
+    near the stability margin of the nominal model, on a rig a few tolerances away from it). The
+    prior says how far the rig may be from the model, so the
     start is searched for there, on common seeds: each parameter with a prior alone at
     :math:`\theta_j \pm \sigma_j, \pm 2\sigma_j`, and, when none of those floats in every replay,
     :math:`4p` points of a scrambled Sobol sequence over :math:`\theta \pm 2\sigma` (within the
@@ -886,8 +886,9 @@ def model_averaged_sd(theta: np.ndarray, var: np.ndarray, alternatives: list) ->
 
     and the standard error :math:`\sqrt{\max(v_0, v)}`: an effect the held-out test could not
     confirm, but the fitting data do not disfavour, widens the error of every parameter it would
-    move (a 0.24 us amplifier dead time moves the self-sensing offset by 8 um on current pulses,
-    where the data cannot tell the two apart), and one the data disfavour barely counts.
+    move (an effect confounded with a calibrated parameter on the data at hand: a small amplifier
+    dead time and the self-sensing offset on current pulses), and one the data disfavour barely
+    counts.
 
     Parameters
     ----------

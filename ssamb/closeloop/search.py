@@ -311,10 +311,30 @@ def _entry(cand: Candidate, rnd: int, settings) -> dict:
 
 
 def _record(info: dict, cand: Candidate, base: Base, rnd: int, settings, **flags) -> None:
-    """Log a fitted candidate in its round (``candidates``, reported) and keep its fit with the
-    keys of the parameters refitted beside it (``fits``, for :func:`averaged_errors`)."""
+    """Log a fitted candidate in its round (``candidates``, reported) and keep what
+    :func:`averaged_errors` reads of it (``fits``: :func:`_alternative`)."""
     info["candidates"].append({**_entry(cand, rnd, settings), **flags})
-    info.setdefault("fits", []).append((tuple(sp.key for sp in base.free), cand))
+    alt = _alternative(cand, base)
+    if alt is not None:
+        info.setdefault("fits", []).append(alt)
+
+
+def _alternative(cand: Candidate, base: Base) -> dict | None:
+    """A judged candidate as an alternative model of the refitted parameters: the effect's name,
+    the keys of the parameters refitted beside it, their estimates and variances, its BIC change
+    in units of its base's misfit per entry (when above one: far from the noise every change of
+    parameters moves the BIC by more than the evidence means); None when it has no fit, was not
+    judged, or its replays drop the body (no model of a rig that floats)."""
+    if cand.fit is None or "delta_bic" not in cand.score or not np.all(np.isfinite(cand.fit.theta)):
+        return None
+    if cand.pred.get("delevitated_share", float(bool(cand.pred.get("delevitated")))) > 0.5:
+        return None
+    k = cand.n_free
+    misfit = max(1.0, cand.score["chi2_fit_before"] / max(cand.score["n_fit"], 1))
+    return {"name": "+".join(cand.names), "keys": tuple(sp.key for sp in base.free)[:k],
+            "theta": np.asarray(cand.fit.theta[:k], float).copy(),
+            "var": np.diag(np.asarray(cand.fit.cov, float))[:k].copy(),
+            "delta_bic": float(cand.score["delta_bic"]) / misfit}
 
 
 def _round(cmp, base, settings, rnd, rejected):
@@ -465,8 +485,8 @@ def _continued(cmp: Comparison, base: Base, cand: Candidate, est, seed0: int, se
 
     A candidate's fit is a screen of ``candidate_iterations``; it can end where the refitted
     parameters have not yet followed the effect, and the view the effect moves most is then
-    worse than without it although the whole held-out part is much better (a 45 us y delay at
-    rest, an 18 N load at rest). The continued fit starts at the screen's estimate, without the
+    worse than without it although the whole held-out part is much better (a large static load
+    at rest, in the common-mode currents). The continued fit starts at the screen's estimate, without the
     coarse grid (a deliberate start, :func:`ssamb.closeloop.fit.fit_candidate`), and
     :func:`_preferred` chooses between the two on the fitting part.
     """
@@ -1242,35 +1262,30 @@ def averaged_errors(ident: dict, specs: list, theta: np.ndarray, rounds: list, r
     exclude (:func:`ssamb.closeloop.estimate.model_averaged_sd`): the final model and each
     candidate of the search's last round, which were all fitted beside it and rejected.
 
-    A candidate's BIC change is read in units of its base's misfit (its fitting chi-square over
-    its entries, when above one: far from the noise every change of parameters moves the BIC by
-    more than the evidence means), a candidate whose replays drop the body does not count, and
-    a candidate refitted with every parameter free counts once, by its refit. A
+    Each candidate is read as :func:`_alternative` keeps it (its BIC change in units of its
+    base's misfit; one whose replays drop the body does not count), and a candidate refitted
+    with every parameter free counts once, by its refit. A
     parameter whose error grows beyond ``ratio`` of its tolerance is no longer identified, and
     its reason names the candidates. ``averaged_over`` lists them with their weights.
     """
     from .estimate import model_averaged_sd
 
     latest = {}                 # one alternative per effect: its last fit (with every parameter free, if refined)
-    for keys, c in (rounds[-1].get("fits") or [] if rounds else []):
-        latest["+".join(c.names)] = (keys, c)
-    fits = [(keys, c) for keys, c in latest.values()
-            if c.fit is not None and c.score and np.all(np.isfinite(c.fit.theta))
-            and c.pred.get("delevitated_share", float(bool(c.pred.get("delevitated")))) <= 0.5]
-    if not fits or not specs:
+    for a in (rounds[-1].get("fits") or [] if rounds else []):
+        latest[a["name"]] = a
+    if not latest or not specs:
         return ident
     per = ident["per_parameter"]
     names = [sp.key for sp in specs]
     var = np.array([per[k]["se"] ** 2 for k in names])
     alts, labels = [], []
-    for keys, c in fits:
+    for a in latest.values():
         th, v = np.full(len(names), np.nan), np.full(len(names), np.nan)
-        for i, k in enumerate(keys):
+        for i, k in enumerate(a["keys"]):
             if k in names:
-                th[names.index(k)], v[names.index(k)] = c.fit.theta[i], c.fit.cov[i, i]
-        f = max(1.0, c.score["chi2_fit_before"] / max(c.score["n_fit"], 1))
-        alts.append((th, v, c.score["delta_bic"] / f))
-        labels.append("+".join(c.names))
+                th[names.index(k)], v[names.index(k)] = a["theta"][i], a["var"][i]
+        alts.append((th, v, a["delta_bic"]))
+        labels.append(a["name"])
     sd, w = model_averaged_sd(np.asarray(theta, float), var, alts)
     out = {**ident, "per_parameter": {k: dict(d) for k, d in per.items()},
            "averaged_over": [{"candidate": n, "delta_bic": float(a[2]), "weight": float(x)}
