@@ -22,6 +22,8 @@ axes drawn (:func:`ssamb.rig.draw_experiment`), logged with noise. The analysis
    both named) counts as the true one, judged by the rival's parameters and standard errors;
    the summary counts such draws;
 3. the oracle: the final model's held-out cost is not significantly above the truth's (same test);
+   recorded beside it, the truth's advantage beyond what an estimate from the fitting part would
+   cost on the held-out part (``z_beyond_uncertainty``: :func:`ssamb.closeloop.excess.truth_advantage`);
 4. per channel (each coil, each position, each controller output), the held-out rms error after
    is at most half of before or at most 1.2 times the floor, the floor being the truth's own
    held-out error (replays with the truth); the floor the data estimate (``noise_rms``) is
@@ -49,8 +51,16 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 REPO = Path(__file__).resolve().parent.parent
+
+
+def _z_crit() -> float:
+    """The oracle's one-sided level: the repository's ``closeloop.alpha_accept``."""
+    from ssamb.config import load_config
+
+    return float(stats.norm.isf(load_config()["closeloop"]["alpha_accept"]))
 
 
 # -- one draw ---------------------------------------------------------------------------------
@@ -159,7 +169,8 @@ def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, worker
     from scipy import stats
 
     from ssamb.closeloop import _analyse
-    from ssamb.closeloop.fit import Base, holdout_score
+    from ssamb.closeloop.excess import truth_advantage
+    from ssamb.closeloop.fit import Base
     from ssamb.config import load_config
     from ssamb.rig import SUITE_EFFECTS, draw_effect, draw_experiment, draw_perturbation, effective_truth
 
@@ -209,11 +220,12 @@ def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, worker
     try:
         tpred = cmp.prediction(truth_ov, truth_eff)
         final = Base(search.overrides, search.effects, search.final)
-        hs = holdout_score(cmp, final, tpred, truth_ov, truth_eff, 0, st)
+        hs = truth_advantage(cmp, final, search.joint.get("point"), tpred, truth_ov, truth_eff, st)
     finally:
         cmp.replay.close()
     z_crit = float(stats.norm.isf(st.alpha_accept))
-    out["oracle"] = {"z_truth_vs_final": hs["z"], "chi2_hold_final": hs["per_view"] and sum(
+    out["oracle"] = {"z_truth_vs_final": hs["z"], "z_beyond_uncertainty": hs["z_excess"], "spread": hs["spread"],
+                     "chi2_hold_final": hs["per_view"] and sum(
         v["chi2_before"] for v in hs["per_view"].values()), "chi2_hold_truth": sum(
         v["chi2_after"] for v in hs["per_view"].values()), "chi2_fit_final": hs["chi2_fit_before"],
         "chi2_fit_truth": hs["chi2_fit_after"], "n_hold": sum(v["n"] for v in hs["per_view"].values()),
@@ -291,6 +303,11 @@ def summary(out_dir: Path) -> dict:
             d[0] += abs(c["z"]) <= 2
             d[1] += 1
     res["failing"] = [(r["draw"], r["kind"], r["failures"]) for r in main if r["failures"]]
+    beyond = {r["draw"]: r["oracle"]["z_beyond_uncertainty"] for r in main
+              if "z_beyond_uncertainty" in r.get("oracle", {})}
+    z_crit = _z_crit()
+    res["oracle_beyond"] = [sum(z > z_crit for z in beyond.values()), len(beyond),
+                            sorted(k for k, z in beyond.items() if z > z_crit), z_crit]
     res["via_rival"] = [(r["draw"], r["kind"], r["via_rival"], not r["failures"]) for r in main if r.get("via_rival")]
     res["null_found"] = [(r["draw"], r["kind"], r["found"]) for r in null if r.get("found")]
     res["null_crashed"] = [(r["draw"], r["failures"]) for r in null
@@ -303,9 +320,13 @@ def print_summary(res: dict) -> None:
     print(f"draws: {res['draws']}, passed {res['passed']} ({100 * res['passed'] / n:.0f} %)")
     for kind, (p, m) in sorted(res["per_kind"].items()):
         print(f"  {kind}: {p} of {m} ({100 * p / max(m, 1):.0f} %)")
-    print("coverage of 2-standard-error intervals:")
+    print("coverage of 2-standard-error intervals (p: two-sided binomial test against 95 %):")
     for name, (p, m) in sorted(res["coverage"].items()):
-        print(f"  {name}: {p} of {m} ({100 * p / max(m, 1):.0f} %)")
+        print(f"  {name}: {p} of {m} ({100 * p / max(m, 1):.0f} %; p {stats.binomtest(p, m, 0.95).pvalue:.2g})")
+    b = res.get("oracle_beyond")
+    if b and b[1]:
+        print(f"oracle beyond the estimation error (z_beyond_uncertainty > {b[3]:.2f}): {b[0]} of {b[1]} draws, "
+              f"draws {b[2]}")
     print(f"null draws: {res['null_draws']}, false alarms {res['false_alarms']}")
     for d in res["via_rival"]:
         print(f"  draw {d[0]} ({d[1]}): the true effect named as a rival of the one reported first, {d[2]}"

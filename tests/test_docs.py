@@ -26,7 +26,8 @@ def test_docs_build_without_warnings(tmp_path):
 
 @pytest.mark.parametrize("name", ["ssamb.mu.mussv", "ssamb.identification.identify", "ssamb.config.load_config",
                                   "ssamb.report.failures.root_cause", "ssamb.pin_blas_threads",
-                                  "ssamb.closeloop.estimate.model_averaged_sd", "ssamb.closeloop.fit.counted_group"])
+                                  "ssamb.closeloop.estimate.model_averaged_sd", "ssamb.closeloop.fit.counted_group",
+                                  "ssamb.closeloop.excess.excess_z"])
 def test_the_examples_of_the_entry_points_run(name, monkeypatch):
     """The Examples sections are doctests that hold (those that write no file)."""
     import doctest

@@ -20,7 +20,9 @@ lacks, name it, add it.
    parameters and effects refitted jointly;
 6. **report** (:mod:`.report`, :mod:`.figures`): ``closeloop.json`` and figures.
 
-:func:`analyse` is the pure analysis (arrays in, dictionary out).
+:func:`analyse` is the pure analysis (arrays in, dictionary out). Where the truth is known (the
+acceptance suite, the tests), :mod:`.excess` judges the final model against it: the truth's
+held-out advantage beyond what the final model's own parameter uncertainty costs there.
 """
 from __future__ import annotations
 

@@ -77,7 +77,8 @@ class SearchResult:
     rounds : list of dict
         Per round: the evidence table, the ranking and every candidate tried with its verdict.
     joint : dict
-        The final joint refit: parameters (calibration and effects), covariance, identifiability.
+        The final joint refit: parameters (calibration and effects), covariance, identifiability,
+        and the final model as a point of its parameter space (``point``: :func:`final_point`).
     effects : list
         Effect specs of the final model.
     overrides : dict
@@ -1230,11 +1231,14 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         start = joint_start(cal, base, free, spare, bool(out.accepted))
         joint = _joint(cmp, cal, out.accepted, settings, est, progress, start)
         fit, theta_cal, ov, eff, models, cuts, ident = _weigh_weak(cmp, cal, out, settings, est, progress, start, joint)
+        blocks = list(zip(out.accepted, models, cuts[:-1], cuts[1:]))
         eff = _drop_null_effects(out, fit, models, cuts, settings.alpha_accept, progress)
         out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
         out.overrides, out.effects = ov, eff
         out.final = cmp.prediction(ov, eff)
         _resolve_aliases(cmp, out, settings, progress)
+        out.joint["point"] = final_point(specs, theta_cal, fit.cov_misfit,
+                                         [b for b in blocks if any(b[0] is a for a in out.accepted)])
         ok, fails = consistency(cmp, Base(out.overrides, out.effects, out.final), settings)
         out.consistent, out.failures = ok, fails
     else:
@@ -1246,6 +1250,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
                                     settings.identifiable_ratio, cov=cal.fit.cov_misfit, cov_noise=cal.fit.cov,
                                     relative=tuple(sp.relative for sp in specs))
         out.joint = {"fit": cal.fit, "ident": ident, "theta_cal": cal.theta}
+        if cal.fit is not None:
+            out.joint["point"] = final_point(specs, cal.theta, cal.fit.cov_misfit, [])
     if settings.average_alternatives:
         ident = averaged_errors(ident, specs, out.joint["theta_cal"], out.rounds, settings.identifiable_ratio)
         out.joint["ident"] = ident
@@ -1255,6 +1261,27 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     out.misfit = misfit(cmp, Base(out.overrides, out.effects, out.final))
     out.optimum = optimum_of(out.joint.get("fit"), EstimateSettings(**settings.estimate).tol)
     return out
+
+
+def final_point(specs: list, theta_cal: np.ndarray, cov: np.ndarray, blocks: list) -> tuple:
+    """The final model as a point of its parameter space, ``(theta, cov, build, prior_sd)``: the
+    calibrated parameters and the kept effects' (``blocks``: ``(accepted, model, lo, hi)``, their
+    slice of the joint fit), the joint fit's covariance over them, ``build(theta) -> (overrides,
+    effects)`` and the priors' standard deviations (``inf`` for an effect's parameters)
+    (:func:`ssamb.closeloop.excess.parameter_spread` replays it about the point)."""
+    from .calibration import calibration_problem, overrides_of
+
+    k = len(specs)
+    idx = list(range(k)) + [i for _, _, lo, hi in blocks for i in range(int(lo), int(hi))]
+    sizes = np.cumsum([k] + [int(hi - lo) for _, _, lo, hi in blocks])
+    theta = np.concatenate([np.asarray(theta_cal, float)] + [np.asarray(a["theta"], float) for a, *_ in blocks])
+
+    def build(t):
+        eff = [e for (_, m, _, _), a, b in zip(blocks, sizes[:-1], sizes[1:]) for e in m.build(t[a:b])]
+        return overrides_of(specs, t[:k]), eff
+    prior = np.concatenate([calibration_problem(specs, None).prior_sd if k else np.zeros(0),
+                            np.full(len(theta) - k, np.inf)])
+    return theta, np.asarray(cov, float)[np.ix_(idx, idx)], build, prior
 
 
 def averaged_errors(ident: dict, specs: list, theta: np.ndarray, rounds: list, ratio: float) -> dict:

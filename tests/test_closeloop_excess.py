@@ -1,0 +1,85 @@
+"""Tests of ssamb.closeloop.excess: the held-out misfit a fitted model owes to its parameter
+uncertainty, on linear Gaussian models where every quantity is known in closed form."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from ssamb.closeloop.excess import excess_z, sigma_points
+
+
+def _spd(rng, p):
+    a = rng.standard_normal((p, p))
+    return a @ a.T + 0.1 * np.eye(p)
+
+
+@pytest.mark.parametrize("p", [1, 3, 6])
+def test_sigma_points_rebuild_the_covariance(p):
+    cov = _spd(np.random.default_rng(p), p)
+    L = sigma_points(cov)
+    assert L.shape == (p, p)
+    np.testing.assert_allclose(L @ L.T, cov, rtol=1e-10, atol=1e-12)
+
+
+def test_sigma_points_leave_out_directions_without_variance():
+    v = np.array([[1.0], [2.0], [0.5]])
+    L = sigma_points(v @ v.T)
+    assert L.shape == (3, 1)
+    np.testing.assert_allclose(L @ L.T, v @ v.T, atol=1e-12)
+
+
+def _draws(extrapolate: float, n_draws: int = 4000, seed: int = 0):
+    """A linear model fitted by least squares on one part, judged on another whose sensitivity to
+    two of its parameters is ``extrapolate`` times larger (a frequency sets a phase that grows
+    with time); per draw the truth's held-out advantage ``D``, the improvement statistic without
+    the parameters' share, and the spread the fit's covariance gives."""
+    rng = np.random.default_rng(seed)
+    n, p = 120, 5
+    J_fit = rng.standard_normal((n, p))
+    J_hold = rng.standard_normal((n, p)) * np.r_[extrapolate, extrapolate, 1.0, 1.0, 1.0]
+    cov = np.linalg.inv(J_fit.T @ J_fit)           # the least-squares covariance: honest
+    G = (J_hold @ sigma_points(cov)).T              # the sigma points' prediction differences
+    spread = {"tr_a": float(np.sum(G * G)), "s2": np.linalg.eigvalsh(G @ G.T).tolist()}
+    d, z_imp = np.empty(n_draws), np.empty(n_draws)
+    for k in range(n_draws):
+        delta = np.linalg.solve(J_fit.T @ J_fit, J_fit.T @ rng.standard_normal(n))   # the fit's error
+        noise = rng.standard_normal(n)
+        g = J_hold @ delta
+        d[k] = float((g - noise) @ (g - noise) - noise @ noise)
+        z_imp[k] = d[k] / np.sqrt(4 * g @ g)
+    return d, z_imp, spread
+
+
+@pytest.mark.parametrize("extrapolate", [1.0, 6.0])
+def test_the_truths_advantage_over_an_honest_fit_is_as_likely_as_excess_z_says(extrapolate):
+    d, z_imp, spread = _draws(extrapolate)
+    s2 = np.asarray(spread["s2"])
+    mean, sd = s2.sum(), np.sqrt(4 * s2.sum() + 2 * np.sum(s2 ** 2))
+    assert abs((d.mean() - mean) / sd) < 0.06 and abs(d.std() / sd - 1) < 0.06, (d.mean(), mean, d.std(), sd)
+    z_crit = stats.norm.isf(1e-2)
+    tail = d[d > mean + 1.5 * sd]                   # the others are far inside
+    beyond = sum(excess_z(x, spread) > z_crit for x in tail) / len(d)
+    assert 0.5e-2 < beyond < 1.6e-2, beyond         # 1 % expected; 4000 draws: sd 0.16 %
+    # the normal approximation with the same mean and variance puts too many beyond
+    assert np.mean((d - mean) / sd > z_crit) > 1.3 * beyond
+    # without the parameters' share the truth looks better than the fit by about sqrt(tr A) / 2
+    assert z_imp.mean() > 0.3 * np.sqrt(mean), (z_imp.mean(), mean)
+
+
+def test_a_missing_effect_is_beyond_the_parameters_uncertainty():
+    """The same fit with a signal the model lacks on the held-out part: the test sees it."""
+    rng = np.random.default_rng(3)
+    n, p = 120, 5
+    J_fit, J_hold = rng.standard_normal((n, p)), rng.standard_normal((n, p))
+    cov = np.linalg.inv(J_fit.T @ J_fit)
+    G = (J_hold @ sigma_points(cov)).T
+    spread = {"tr_a": float(np.sum(G * G)), "s2": np.linalg.eigvalsh(G @ G.T).tolist()}
+    missing = 1.0 * np.sin(np.linspace(0, 20, n))       # chi-square about 60 over 120 entries
+    hits = 0
+    for _ in range(200):
+        delta = np.linalg.solve(J_fit.T @ J_fit, J_fit.T @ rng.standard_normal(n))
+        noise = rng.standard_normal(n)
+        g = J_hold @ delta + missing
+        hits += excess_z(float((g - noise) @ (g - noise) - noise @ noise), spread) > stats.norm.isf(1e-3)
+    assert hits / 200 > 0.9
