@@ -83,3 +83,31 @@ def test_a_missing_effect_is_beyond_the_parameters_uncertainty():
         g = J_hold @ delta + missing
         hits += excess_z(float((g - noise) @ (g - noise) - noise @ noise), spread) > stats.norm.isf(1e-3)
     assert hits / 200 > 0.9
+
+
+def test_the_final_point_rebuilds_the_final_model_and_the_truth_is_within_its_spread():
+    """On the toy device (a first-order plant under PI control, tests/test_closeloop_toy.py), whose
+    replays are smooth in its parameters: the final model's parameter point rebuilds the final
+    model; the held-out spread an estimate of its two parameters leaves is of the order of two
+    (the held-out part is another stretch of the same experiment); the truth is not ahead of the
+    final model beyond it."""
+    from test_closeloop_toy import CFG, Toy, _data
+
+    from ssamb.closeloop import _analyse
+    from ssamb.closeloop.excess import truth_advantage
+    from ssamb.closeloop.fit import Base
+
+    truth_ov, truth_eff = {"plant.b_gain": 1.08}, [{"name": "bias", "force_n": 0.3}]
+    arrays = _data({"plant": {"a": 0.95, "b_gain": 1.08}}, truth_eff)
+    rep, art = _analyse(arrays, {}, CFG, device=Toy())
+    cmp, search = art["comparison"], art["search"]
+    assert [e["name"] for e in rep["effects"]] == ["bias"]
+    theta, cov, build, prior = search.joint["point"]
+    assert len(theta) == 2 and cov.shape == (2, 2) and np.isfinite(prior[0]) and np.isinf(prior[1])
+    ov, eff = build(theta)
+    assert ov == pytest.approx(search.overrides) and eff == search.effects
+    adv = truth_advantage(cmp, Base(search.overrides, search.effects, search.final), search.joint["point"],
+                          cmp.prediction(truth_ov, truth_eff), truth_ov, truth_eff, art["settings"])
+    assert 0.2 < adv["spread"]["tr_a"] < 8.0, adv["spread"]
+    assert adv["spread"]["dropped"] == 0 and adv["spread"]["points"] == 4
+    assert adv["z_excess"] < stats.norm.isf(1e-3), adv["z_excess"]
