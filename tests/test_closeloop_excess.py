@@ -111,3 +111,39 @@ def test_the_final_point_rebuilds_the_final_model_and_the_truth_is_within_its_sp
     assert 0.2 < adv["spread"]["tr_a"] < 8.0, adv["spread"]
     assert adv["spread"]["dropped"] == 0 and adv["spread"]["points"] == 4
     assert adv["z_excess"] < stats.norm.isf(1e-3), adv["z_excess"]
+
+
+class _Linear:
+    """A comparison whose prediction is linear in one parameter (no replay noise): enough of
+    :class:`ssamb.closeloop.comparison.Comparison` for :func:`parameter_spread`."""
+
+    def __init__(self, j_fit, j_hold):
+        self.fit, self.hold = "fit", "hold"
+        self.j = {"fit": np.asarray(j_fit, float), "hold": np.asarray(j_hold, float)}
+
+    def prediction(self, overrides, effects):
+        return {"theta": overrides["theta"], "delevitated_share": 0.0}
+
+    def residual(self, part, pred):
+        return self.j[part] * pred["theta"]
+
+    def memoised(self, kind, part, overrides, effects, compute):
+        return None                                 # no replays to pair: nothing to debias
+
+
+def test_a_sigma_point_beyond_a_parameters_domain_is_measured_from_its_other_side():
+    """A delay of 0.1 sd above zero: the point below zero leaves the domain (the effect refuses
+    it); the direction is measured from the point above, and the spread is the linear one."""
+    from ssamb.closeloop.excess import parameter_spread
+    from ssamb.errors import InputError
+
+    def build(t):
+        if t[0] < 0:
+            raise InputError("delay_s must be in [0, 2.5e-3) s")
+        return {"theta": float(t[0])}, []
+    cmp = _Linear(np.ones(50), 2 * np.ones(20))     # information 50 on the fitting part; 4 x 20 held out
+    sd = 0.2
+    out = parameter_spread(cmp, (np.array([0.1 * sd]), np.array([[sd ** 2]]), build, np.array([np.inf])),
+                           (np.ones(50), np.ones(20)))
+    assert out["dropped"] == 1 and out["points"] == 2
+    assert out["tr_a"] == pytest.approx(80 / 50)    # J_h^2 / J_f^2, whatever sd the estimator reported

@@ -38,6 +38,7 @@ import math
 import numpy as np
 from scipy import stats
 
+from ..errors import InputError
 from .comparison import Comparison, Part
 
 __all__ = ["excess_z", "parameter_spread", "sigma_points", "truth_advantage"]
@@ -143,8 +144,8 @@ def parameter_spread(cmp: Comparison, point: tuple, scales: tuple) -> dict:
     estimator reported (an estimator that states a loose covariance is not excused by it, and one
     that stopped short of the optimum is found out). On the held-out part,
     :math:`A = G_h^T\Sigma_u G_h`. Returns ``tr_a``, ``s2`` (the eigenvalues of :math:`A`),
-    ``points`` (sigma points replayed) and ``dropped`` (those whose replays mostly touch a stop:
-    left out, they are no model of a rig that floats).
+    ``points`` (sigma points replayed) and ``dropped`` (those whose replays mostly touch a stop,
+    or that leave a parameter's domain: left out, a direction then measured from its other side).
     """
     from .fit import _leave_one_out
 
@@ -160,8 +161,12 @@ def parameter_spread(cmp: Comparison, point: tuple, scales: tuple) -> dict:
     for i in range(L.shape[1]):
         side = []
         for sgn in (1.0, -1.0):
-            ov, eff = build(theta + sgn * L[:, i])
-            pred = cmp.prediction(ov, eff)
+            try:                    # a point beyond a parameter's domain (a delay below zero) is left out
+                ov, eff = build(theta + sgn * L[:, i])
+                pred = cmp.prediction(ov, eff)
+            except InputError:
+                dropped += 1
+                continue
             if pred.get("delevitated_share", 0.0) > 0.5:
                 dropped += 1
                 continue
@@ -172,6 +177,9 @@ def parameter_spread(cmp: Comparison, point: tuple, scales: tuple) -> dict:
             if len(side) == 2:
                 cols[k].append((side[0][k][0] - side[1][k][0]) / 2)
                 bias[k].append((side[0][k][1] + side[1][k][1]) / 4)
+            elif side:              # one side: its difference (the sign does not enter A)
+                cols[k].append(side[0][k][0])
+                bias[k].append(side[0][k][1])
             else:
                 cols[k].append(np.zeros(len(r0[k])))
                 bias[k].append(0.0)
