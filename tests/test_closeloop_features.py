@@ -563,3 +563,37 @@ def test_the_unbalance_fits_its_force_at_the_lines_speed():
     rep = unbalance.report(m, np.array([3e-6, 4e-6]), np.array([1e-7, 1e-7]), True)[0]
     assert rep["params"]["speed_hz"] == 129.22 and rep["uncertainty"]["speed_hz"] == 0.0025
     assert rep["force_n"] == pytest.approx(5e-6 * (2 * math.pi * 129.22) ** 2)
+
+
+def test_an_unbalances_neighbours_keep_its_force_where_the_fitting_part_pins_it():
+    """The family the search moves an unbalance's speed along: whole standard errors of the line's
+    frequency, the force's phase at the fitting part's centre unchanged (its amplitude follows the
+    speed squared), and no speed at or below zero."""
+    from ssamb.sim.effects import unbalance
+
+    m = unbalance.model({"speed_hz": 40.0, "speed_se_hz": 0.05}, None, None)
+    me, ph, t_c = 2e-5, 0.7, 0.25
+    theta = np.array([me * math.cos(ph), me * math.sin(ph)])
+    fam = unbalance.neighbours(m, theta, t_c, [-2.0, 1.0])
+    assert [m2.fixed["speed_hz"] for m2, _ in fam] == pytest.approx([39.9, 40.05])
+    for m2, th2 in fam:
+        e = m2.build(th2)[0]
+        assert e["mass_ecc_kgm"] == pytest.approx(me)
+        d = (2 * math.pi * e["speed_hz"] * t_c + e["phase_rad"]) - (2 * math.pi * 40.0 * t_c + ph)
+        assert math.remainder(d, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+    assert unbalance.neighbours(m, theta, t_c, [-1000.0]) == []
+    assert unbalance.neighbours(unbalance.model({"speed_hz": 40.0}, None, None), theta, t_c, [1.0]) == []
+
+
+@pytest.mark.parametrize("centre, expected", [(0.3, 0.3), (-0.7, -0.7), (1.7, None), (0.0, None)])
+def test_the_speed_search_interpolates_a_parabola_between_its_points(centre, expected):
+    """The vertex of a cost quadratic in the step is found exactly between the points that bracket
+    it; a minimum at the range's edge (or at a point already tried) gives none."""
+    from ssamb.closeloop.search import SPEED_STEPS, _parabola_vertex
+
+    tried = {k: (100.0 + 7.0 * (k - centre) ** 2, None) for k in (0.0,) + SPEED_STEPS}
+    v = _parabola_vertex(tried)
+    if expected is None or expected in tried:
+        assert v is None or v in tried
+    else:
+        assert v == pytest.approx(expected, abs=1e-3)

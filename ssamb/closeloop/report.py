@@ -114,7 +114,8 @@ def _effects(search, sigma, meas_v, hold, dev) -> list:
                                 "explained_at_acceptance": a["holdout"]["explained"],
                                 "delta_bic": a["holdout"]["delta_bic"], "round": a["round"],
                                 "without_signature": a["without_signature"],
-                                "aliases_plausible": a.get("alias_spread", {}).get("plausible", [])},
+                                "aliases_plausible": a.get("alias_spread", {}).get("plausible", []),
+                                **({"speed_refined": a["speed_refined"]} if a.get("speed_refined") else {})},
                         **({"rivals": list(a["rivals"])} if a.get("rivals") else {}),
                         **{k: v for k, v in e.items() if k not in ("name", "params", "uncertainty")}})
     out.sort(key=lambda e: -e["error_reduction"])

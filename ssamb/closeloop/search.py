@@ -1121,6 +1121,76 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
                                f"{dict(zip(m.params, np.round(a['se'], 9).tolist()))}")
 
 
+def _refine_speeds(cmp: Comparison, out: SearchResult, settings, progress: bool) -> None:
+    r"""An accepted effect whose frequency is measured, not fitted (the unbalance's spin speed:
+    the line's least-squares frequency), searched along its family of neighbours
+    (``neighbours(model, theta, t_centre_s, steps)`` of the effect's module: the speed moved in
+    units of its standard error, the force's phase kept at the fitting part's centre), scored on
+    the fitting part: at :data:`SPEED_STEPS`, then at the vertex of the parabola through the best
+    point and its two neighbours. The best replaces the effect when it improves the fitting part
+    beyond the acceptance level (:func:`ssamb.closeloop.fit.improvement_z` at ``alpha_accept``):
+    the held-out part, after the fitting part, sees every bit of a speed error as a phase drift,
+    where the fitting part sees only the drift within it."""
+    z_crit = float(stats.norm.isf(settings.alpha_accept))
+    t_c = (cmp.fit.frame.i0 + cmp.fit.frame.n / 2) / cmp.record.fs_hz
+    for a in out.accepted:
+        fam = getattr(cmp.device.effects.get(a["model"].name), "neighbours", None)
+        if fam is None:
+            continue
+        r0 = cmp.residual(cmp.fit, out.final)
+        tried = {0.0: (float(r0 @ r0), None)}
+
+        def score(steps):
+            for k in steps:
+                got = fam(a["model"], a["theta"], t_c, [k])
+                if not got:                 # no such speed (at or below zero)
+                    continue
+                m2, th2 = got[0]
+                eff = [e for b in out.accepted for e in (m2.build(th2) if b is a else b["model"].build(b["theta"]))]
+                pred = cmp.prediction(out.overrides, eff)
+                if pred.get("delevitated_share", 0.0) <= 0.5:
+                    r = cmp.residual(cmp.fit, pred)
+                    tried[float(k)] = (float(r @ r), (m2, th2, eff, pred))
+        score(list(SPEED_STEPS))
+        vertex = _parabola_vertex(tried)
+        if vertex is not None and vertex not in tried:
+            score([vertex])
+        k_best = min(tried, key=lambda k: tried[k][0])
+        if k_best == 0.0:
+            continue
+        m2, th2, eff, pred = tried[k_best][1]
+        z = improvement_z(cmp, cmp.fit, Base(out.overrides, out.effects, out.final), pred, out.overrides, eff)
+        f_old, f_new = float(a["model"].fixed["speed_hz"]), float(m2.fixed["speed_hz"])
+        if z > z_crit:
+            _log(progress, f"final model: {a['model'].name} at {f_new:.6g} Hz instead of {f_old:.6g} Hz fits the "
+                           f"fitting part better (z {z:.1f} > {z_crit:.2f}): taken")
+            a["speed_refined"] = {"from_hz": f_old, "to_hz": f_new, "z_fit": z}
+            a["model"], a["theta"] = m2, th2
+            out.effects, out.final = eff, pred
+        else:
+            _log(progress, f"final model: {a['model'].name} at {f_new:.6g} Hz fits the fitting part no better "
+                           f"beyond its noise (z {z:.1f}): kept at {f_old:.6g} Hz")
+
+
+#: the points :func:`_refine_speeds` scores first, in standard errors of the measured frequency
+SPEED_STEPS = (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)
+
+
+def _parabola_vertex(tried: dict) -> float | None:
+    """The vertex of the parabola through the lowest of ``tried`` (``step -> (cost, ...)``) and
+    its neighbours in step, when it is a minimum inside their range; else None."""
+    ks = sorted(tried)
+    i = min(range(len(ks)), key=lambda j: tried[ks[j]][0])
+    if i == 0 or i == len(ks) - 1:
+        return None
+    x = np.array(ks[i - 1:i + 2])
+    c2, c1, _ = np.polyfit(x, [tried[k][0] for k in x], 2)
+    if c2 <= 0:
+        return None
+    v = float(-c1 / (2 * c2))
+    return round(v, 3) if x[0] < v < x[2] else None
+
+
 def _alias_spread(cmp: Comparison, out: SearchResult, a: dict, z_crit: float) -> tuple:
     r"""The spread of an accepted effect over the points of its comb
     (:attr:`ssamb.device.EffectModel.comb`) that the record does not reject.
@@ -1237,6 +1307,7 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         out.overrides, out.effects = ov, eff
         out.final = cmp.prediction(ov, eff)
         _resolve_aliases(cmp, out, settings, progress)
+        _refine_speeds(cmp, out, settings, progress)
         out.joint["point"] = final_point(specs, theta_cal, fit.cov_misfit,
                                          [b for b in blocks if any(b[0] is a for a in out.accepted)])
         ok, fails = consistency(cmp, Base(out.overrides, out.effects, out.final), settings)
@@ -1277,7 +1348,7 @@ def final_point(specs: list, theta_cal: np.ndarray, cov: np.ndarray, blocks: lis
     theta = np.concatenate([np.asarray(theta_cal, float)] + [np.asarray(a["theta"], float) for a, *_ in blocks])
 
     def build(t):
-        eff = [e for (_, m, _, _), a, b in zip(blocks, sizes[:-1], sizes[1:]) for e in m.build(t[a:b])]
+        eff = [e for (acc, _, _, _), a, b in zip(blocks, sizes[:-1], sizes[1:]) for e in acc["model"].build(t[a:b])]
         return overrides_of(specs, t[:k]), eff
     prior = np.concatenate([calibration_problem(specs, None).prior_sd if k else np.zeros(0),
                             np.full(len(theta) - k, np.inf)])

@@ -21,7 +21,10 @@ the fitting part, sees the phase drift it leaves. The line's least-squares frequ
 same part (:func:`ssamb.closeloop.spectra.fit_line`, each view weighted by its noise near the
 line, and tapered where the excitation is not periodic so that the model's misfit of it does
 not pull the frequency) comes within 1.4 times the Cramer-Rao bound in white noise (1.7 tapered),
-and its sandwich standard error says how far it can be trusted in coloured noise.
+and its sandwich standard error says how far it can be trusted in coloured noise. Once the
+model is final, the speed is searched along :func:`neighbours` (the force's phase held at the
+fitting part's centre) by the fitting part's whole cost, which also reads the drift within the
+part; a point that beats the measured speed there significantly replaces it.
 """
 from __future__ import annotations
 
@@ -188,6 +191,28 @@ def model(hints: dict, record, st) -> EffectModel | str:
                        np.array([-1.0, -1.0]), np.array([1.0, 1.0]), build,
                        {"speed_hz": f_hz, "speed_se_hz": float(hints.get("speed_se_hz", 0.0))},
                        size_params=("me_cos_kgm", "me_sin_kgm"))
+
+
+def neighbours(m: EffectModel, theta, t_centre_s: float, steps: float | list) -> list:
+    """The same unbalance at spin speeds ``steps`` (in units of the line's standard error) from
+    the fitted one, its force's phase kept where the fitting part pins it (at ``t_centre_s``, the
+    part's centre): ``[(model, theta)]``. The fitting part sees a speed error only through the
+    phase it drifts by within the part, so the speed is searched along this family (the search's
+    ``_refine_speeds``) rather than fitted beside the phasor.
+    """
+    f0, se = float(m.fixed["speed_hz"]), float(m.fixed.get("speed_se_hz", 0.0))
+    if se <= 0:
+        return []
+    me, ph = math.hypot(theta[0], theta[1]), math.atan2(theta[1], theta[0])
+    out = []
+    for k in np.atleast_1d(steps):
+        f = f0 + float(k) * se
+        if f <= 0:
+            continue
+        m2 = model({"speed_hz": f, "speed_se_hz": se}, None, None)
+        p2 = ph - 2 * math.pi * (f - f0) * t_centre_s
+        out.append((m2, np.array([me * math.cos(p2), me * math.sin(p2)])))
+    return out
 
 
 def report(m: EffectModel, theta, se, significant) -> list[dict]:
