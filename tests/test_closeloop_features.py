@@ -585,15 +585,13 @@ def test_an_unbalances_neighbours_keep_its_force_where_the_fitting_part_pins_it(
     assert unbalance.neighbours(unbalance.model({"speed_hz": 40.0}, None, None), theta, t_c, [1.0]) == []
 
 
-@pytest.mark.parametrize("centre, expected", [(0.3, 0.3), (-0.7, -0.7), (1.7, None), (0.0, None)])
-def test_the_speed_search_interpolates_a_parabola_between_its_points(centre, expected):
-    """The vertex of a cost quadratic in the step is found exactly between the points that bracket
-    it; a minimum at the range's edge (or at a point already tried) gives none."""
+@pytest.mark.parametrize("centre, expected", [(0.3, 0.3), (-0.7, -0.7), (1.7, 1.7), (2.5, None)])
+def test_the_speed_search_takes_the_vertex_of_a_parabola_through_its_costs(centre, expected):
+    """The vertex of a cost quadratic in the step is found exactly within the steps scored; one
+    beyond them, or a cost without a minimum, gives none."""
     from ssamb.closeloop.search import SPEED_STEPS, _parabola_vertex
 
     tried = {k: (100.0 + 7.0 * (k - centre) ** 2, None) for k in (0.0,) + SPEED_STEPS}
     v = _parabola_vertex(tried)
-    if expected is None or expected in tried:
-        assert v is None or v in tried
-    else:
-        assert v == pytest.approx(expected, abs=1e-3)
+    assert v == (pytest.approx(expected, abs=1e-3) if expected is not None else None)
+    assert _parabola_vertex({k: (100.0 - k * k, None) for k in (0.0,) + SPEED_STEPS}) is None

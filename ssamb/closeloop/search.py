@@ -1123,15 +1123,16 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
 
 def _refine_speeds(cmp: Comparison, out: SearchResult, settings, progress: bool) -> None:
     r"""An accepted effect whose frequency is measured, not fitted (the unbalance's spin speed:
-    the line's least-squares frequency), searched along its family of neighbours
+    the line's least-squares frequency), estimated again along its family of neighbours
     (``neighbours(model, theta, t_centre_s, steps)`` of the effect's module: the speed moved in
-    units of its standard error, the force's phase kept at the fitting part's centre), scored on
-    the fitting part: at :data:`SPEED_STEPS`, then at the vertex of the parabola through the best
-    point and its two neighbours. The best replaces the effect when it improves the fitting part
-    beyond the acceptance level (:func:`ssamb.closeloop.fit.improvement_z` at ``alpha_accept``):
-    the held-out part, after the fitting part, sees every bit of a speed error as a phase drift,
-    where the fitting part sees only the drift within it."""
-    z_crit = float(stats.norm.isf(settings.alpha_accept))
+    units of its standard error, the force's phase kept at the fitting part's centre) by the
+    fitting part's whole cost: scored at :data:`SPEED_STEPS`, a parabola fitted to the costs, and
+    its vertex, when it is a minimum within them, replayed; the vertex replaces the measured
+    speed when it costs less there. The held-out part comes after the fitting part and sees every
+    bit of a speed error as a phase drift, where the line's frequency, measured over the fitting
+    part, reads only the drift within it; the cost's own noise moves the vertex by less than it
+    moves the lowest point (``fit.speed_refined`` records both speeds and the fitting part's
+    :func:`ssamb.closeloop.fit.improvement_z` of the change)."""
     t_c = (cmp.fit.frame.i0 + cmp.fit.frame.n / 2) / cmp.record.fs_hz
     for a in out.accepted:
         fam = getattr(cmp.device.effects.get(a["model"].name), "neighbours", None)
@@ -1153,42 +1154,36 @@ def _refine_speeds(cmp: Comparison, out: SearchResult, settings, progress: bool)
                     tried[float(k)] = (float(r @ r), (m2, th2, eff, pred))
         score(list(SPEED_STEPS))
         vertex = _parabola_vertex(tried)
-        if vertex is not None and vertex not in tried:
-            score([vertex])
-        k_best = min(tried, key=lambda k: tried[k][0])
-        if k_best == 0.0:
+        if vertex is None or abs(vertex) < 1e-3:
             continue
-        m2, th2, eff, pred = tried[k_best][1]
+        score([vertex])
+        if vertex not in tried or tried[vertex][0] >= tried[0.0][0]:
+            continue
+        m2, th2, eff, pred = tried[vertex][1]
         z = improvement_z(cmp, cmp.fit, Base(out.overrides, out.effects, out.final), pred, out.overrides, eff)
         f_old, f_new = float(a["model"].fixed["speed_hz"]), float(m2.fixed["speed_hz"])
-        if z > z_crit:
-            _log(progress, f"final model: {a['model'].name} at {f_new:.6g} Hz instead of {f_old:.6g} Hz fits the "
-                           f"fitting part better (z {z:.1f} > {z_crit:.2f}): taken")
-            a["speed_refined"] = {"from_hz": f_old, "to_hz": f_new, "z_fit": z}
-            a["model"], a["theta"] = m2, th2
-            out.effects, out.final = eff, pred
-        else:
-            _log(progress, f"final model: {a['model'].name} at {f_new:.6g} Hz fits the fitting part no better "
-                           f"beyond its noise (z {z:.1f}): kept at {f_old:.6g} Hz")
+        _log(progress, f"final model: {a['model'].name} at {f_new:.6g} Hz instead of the line's {f_old:.6g} Hz: "
+                       f"the fitting part's cost along the speed is least there (z {z:.1f} over the line's)")
+        a["speed_refined"] = {"from_hz": f_old, "to_hz": f_new, "z_fit": z}
+        a["model"], a["theta"] = m2, th2
+        out.effects, out.final = eff, pred
 
 
-#: the points :func:`_refine_speeds` scores first, in standard errors of the measured frequency
+#: the points :func:`_refine_speeds` scores, in standard errors of the measured frequency
 SPEED_STEPS = (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)
 
 
 def _parabola_vertex(tried: dict) -> float | None:
-    """The vertex of the parabola through the lowest of ``tried`` (``step -> (cost, ...)``) and
-    its neighbours in step, when it is a minimum inside their range; else None."""
-    ks = sorted(tried)
-    i = min(range(len(ks)), key=lambda j: tried[ks[j]][0])
-    if i == 0 or i == len(ks) - 1:
+    """The vertex of the parabola fitted by least squares to every cost of ``tried`` (``step ->
+    (cost, ...)``), when it is a minimum within the steps tried; else None."""
+    ks = np.array(sorted(tried))
+    if len(ks) < 3:
         return None
-    x = np.array(ks[i - 1:i + 2])
-    c2, c1, _ = np.polyfit(x, [tried[k][0] for k in x], 2)
+    c2, c1, _ = np.polyfit(ks, [tried[k][0] for k in ks], 2)
     if c2 <= 0:
         return None
     v = float(-c1 / (2 * c2))
-    return round(v, 3) if x[0] < v < x[2] else None
+    return round(v, 3) if ks[0] < v < ks[-1] else None
 
 
 def _alias_spread(cmp: Comparison, out: SearchResult, a: dict, z_crit: float) -> tuple:

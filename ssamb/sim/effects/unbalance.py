@@ -24,7 +24,8 @@ not pull the frequency) comes within 1.4 times the Cramer-Rao bound in white noi
 and its sandwich standard error says how far it can be trusted in coloured noise. Once the
 model is final, the speed is searched along :func:`neighbours` (the force's phase held at the
 fitting part's centre) by the fitting part's whole cost, which also reads the drift within the
-part; a point that beats the measured speed there significantly replaces it.
+part: the vertex of a parabola through those costs replaces the measured speed where it costs
+less.
 """
 from __future__ import annotations
 
