@@ -135,3 +135,15 @@ def test_config_comments_are_one_short_reason():
     long = [f"config.yaml:{n}: {len(c)} characters"
             for n, c in _yaml_comments(ROOT / "config.yaml") if len(c.strip()) > 160]
     assert not long, "\n".join(long)
+
+
+def test_no_control_characters_in_the_sources():
+    """No tab or other control character in the library, tests or benchmarks: in a docstring one
+    is a backslash escape gone wrong (``\\theta`` written where a raw string was meant)."""
+    bad = []
+    for folder in ("ssamb", "tests", "bench", "workflow"):
+        for p in sorted((ROOT / folder).rglob("*.py")):
+            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):
+                if re.search(r"[\x00-\x08\x0b\x0c\x0e-\x1f\t]", line):
+                    bad.append(f"{p.relative_to(ROOT)}:{i}")
+    assert not bad, bad

@@ -136,9 +136,9 @@ def parameter_spread(cmp: Comparison, point: tuple, scales: tuple) -> dict:
     (overrides, effects)`` and the parameters' prior standard deviations (``inf`` without a
     prior); ``scales`` the per-entry factors of the fitting and held-out parts' residuals.
 
-    The sigma points :math:`\hat	heta \pm l_i` (:func:`sigma_points` of the covariance) are
+    The sigma points :math:`\hat\theta \pm l_i` (:func:`sigma_points` of the covariance) are
     replayed; their differences on the fitting part give its information in the coordinates
-    :math:`u` of :math:`	heta = \hat	heta + Lu`, :math:`F = G_f G_f^T` (debiased by the replays'
+    :math:`u` of :math:`\theta = \hat\theta + Lu`, :math:`F = G_f G_f^T` (debiased by the replays'
     own noise on the diagonal), and the prior's, :math:`L^T P L`; the error an estimate from that
     part has is :math:`u \sim N(0, \Sigma_u)`, :math:`\Sigma_u = (F + L^TPL)^{-1}`, whatever the
     estimator reported (an estimator that states a loose covariance is not excused by it, and one

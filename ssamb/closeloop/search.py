@@ -1130,9 +1130,9 @@ def _refine_speeds(cmp: Comparison, out: SearchResult, settings, progress: bool)
     its vertex, when it is a minimum within them, replayed; the vertex replaces the measured
     speed when it costs less there. The held-out part comes after the fitting part and sees every
     bit of a speed error as a phase drift, where the line's frequency, measured over the fitting
-    part, reads only the drift within it; the cost's own noise moves the vertex by less than it
-    moves the lowest point (``fit.speed_refined`` records both speeds and the fitting part's
-    :func:`ssamb.closeloop.fit.improvement_z` of the change)."""
+    part, reads only the drift within it. The parabola through all the scored costs, not their
+    lowest point, so that no single replayed cost decides (``fit.speed_refined`` records both
+    speeds and the fitting part's :func:`ssamb.closeloop.fit.improvement_z` of the change)."""
     t_c = (cmp.fit.frame.i0 + cmp.fit.frame.n / 2) / cmp.record.fs_hz
     for a in out.accepted:
         fam = getattr(cmp.device.effects.get(a["model"].name), "neighbours", None)
