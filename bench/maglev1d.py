@@ -126,7 +126,8 @@ def main() -> None:
         if fr is not None:
             ref, info = fr
             r2 = controller.check(a, cfg, yd=ref)
-            print(f"{'':13s} with the reference's formula ({info['offset_m'] * 1e3:.4g} mm + {info['amplitude_m'] * 1e3:.4g} mm "
+            print(f"{'':13s} with the reference's formula ({info['offset_m'] * 1e3:.4g} mm + "
+                  f"{info['amplitude_m'] * 1e3:.4g} mm "
                   f"sin(2 pi ({info['f0_hz']:.4g} s + {info['f1_hz_per_s']:.4g} s^2)), s = t - {info['t0_s']:.4g} s; "
                   f"max |formula - logged yd| {info['max_abs_vs_log_m'] * 1e6:.3g} um): within rounding "
                   f"{100 * r2['within_rounding']:.1f} %, rms {r2['rms_v']:.3g} V")
@@ -137,19 +138,24 @@ def main() -> None:
         e = checks.equilibrium_currents(a, cfg)
         nz = checks.noise_levels(a, cfg)
         print(f"{name:13s} coil: tau {c['tau_s'] * 1e3:.2f} ms (published L/R {c['tau_model_s'] * 1e3:.2f} ms; "
-              f"L = tau R = {c['inductance_h_if_r_nominal'] * 1e3:.1f} mH vs L(y) {c['inductance_model_h'] * 1e3:.1f} mH "
-              f"at {c['y_mean_m'] * 1e3:.2f} mm), R/g {c['r_over_gain_ohm']:.2f} ohm (model {c['r_over_gain_model_ohm']:.2f}), "
+              f"L = tau R = {c['inductance_h_if_r_nominal'] * 1e3:.1f} mH "
+              f"vs L(y) {c['inductance_model_h'] * 1e3:.1f} mH "
+              f"at {c['y_mean_m'] * 1e3:.2f} mm), R/g {c['r_over_gain_ohm']:.2f} ohm "
+              f"(model {c['r_over_gain_model_ohm']:.2f}), "
               f"offset {c['offset_v']:.2f} V (model 0); {c['samples']} samples")
         if e["plateaus"]:
-            line = f"length of the line through them {e['length_m'] * 1e3:.2f} mm (law: a = {cfg['magnet']['a_m'] * 1e3:.2f} mm)" \
-                if "length_m" in e else "one level"
+            line = (f"length of the line through them {e['length_m'] * 1e3:.2f} mm "
+                    f"(law: a = {cfg['magnet']['a_m'] * 1e3:.2f} mm)"
+                    if "length_m" in e else "one level")
             print(f"{'':13s} equilibrium: {e['plateaus']} settled 2 s plateaus at "
                   f"{min(e['y_m']) * 1e3:.2f}-{max(e['y_m']) * 1e3:.2f} mm, measured/force-law current "
-                  f"{min(np.array(e['i_a']) / np.array(e['i_model_a'])):.3f}-{max(np.array(e['i_a']) / np.array(e['i_model_a'])):.3f}; {line}")
+                  f"{min(np.array(e['i_a']) / np.array(e['i_model_a'])):.3f}-"
+                  f"{max(np.array(e['i_a']) / np.array(e['i_model_a'])):.3f}; {line}")
         else:
             print(f"{'':13s} equilibrium: no settled plateau (moving reference)")
         print(f"{'':13s} noise before the ADCs (upper bounds): current {nz['current_a'] * 1e3:.2f} mA "
-              f"({nz['current_counts']:.2f} counts), position {nz['position_m'] * 1e6:.1f} um ({nz['position_counts']:.2f} counts)")
+              f"({nz['current_counts']:.2f} counts), position {nz['position_m'] * 1e6:.1f} um "
+              f"({nz['position_counts']:.2f} counts)")
 
     print("\n== 3. linearised sampled loop (spectral radius; least damped oscillation)")
     starts = {n: dev.initial_estimate(r, cfg) for n, r in recs.items()}

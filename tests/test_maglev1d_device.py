@@ -171,7 +171,8 @@ def test_start_candidates_are_the_one_level_family_through_the_start():
 
 def _levitating_arrays(n=400, scale=1.0):
     t = np.arange(n) * 0.01
-    return {"t": t, "y": np.full(n, 0.005) * scale, "i": np.full(n, 0.45), "u": np.full(n, 7.0), "yd": np.full(n, 0.005) * scale}
+    return {"t": t, "y": np.full(n, 0.005) * scale, "i": np.full(n, 0.45), "u": np.full(n, 7.0),
+            "yd": np.full(n, 0.005) * scale}
 
 
 def test_validate_accepts_levitation_and_rejects_a_ball_that_never_floats():

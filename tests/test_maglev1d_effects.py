@@ -107,7 +107,8 @@ def test_hints_give_the_size():
     lib = DEV.effects
     assert lib["sensor_delay"].evidence(SIGNS["sensor_delay"], ALPHA, SETTINGS)["hints"]["delay_s"] == 3e-3
     rec = _record()
-    m = lib["sensor_gain"].model(lib["sensor_gain"].evidence(SIGNS["sensor_gain"], ALPHA, SETTINGS)["hints"], rec, SETTINGS)
+    m = lib["sensor_gain"].model(lib["sensor_gain"].evidence(SIGNS["sensor_gain"], ALPHA, SETTINGS)["hints"],
+                                 rec, SETTINGS)
     assert m.theta0[0] == pytest.approx(-0.1)
     m = lib["amplifier_drop"].model({"offset_u_v": 1.0}, rec, SETTINGS)
     assert m.theta0[0] == pytest.approx(CFG["amplifier"]["v_max_v"] / CFG["controller"]["v_ref_v"])
@@ -174,7 +175,8 @@ def test_offset_signatures_hold_in_replays(name, shifted, clean):
     for v in shifted:
         assert abs(eff[v] - base[v]) > 3 * q[v], (v, eff[v] - base[v])
     for v in clean:
-        assert abs(eff[v] - base[v]) < max(0.2 * abs(eff[shifted[0]] - base[shifted[0]]) * q[v] / q[shifted[0]], q[v]), v
+        assert abs(eff[v] - base[v]) < max(0.2 * abs(eff[shifted[0]] - base[shifted[0]]) * q[v] / q[shifted[0]],
+                                           q[v]), v
 
 
 def test_zero_size_effects_are_neutral():

@@ -231,7 +231,8 @@ def face_anchored(est: Mapping, cfg: Mapping) -> dict:
     a2 = a - (out["sensors.position_offset_m"] - float(se["position_offset_m"])) / gs
     if a2 < 0.1 * a:
         return out
-    out.update({"magnet.a_m": a2, "magnet.k_h": k * a / a2, "sensors.position_offset_m": float(se["position_offset_m"])})
+    out.update({"magnet.a_m": a2, "magnet.k_h": k * a / a2,
+                "sensors.position_offset_m": float(se["position_offset_m"])})
     return out
 
 

@@ -151,7 +151,8 @@ def load_npz_record(path: str | Path) -> tuple[dict, dict]:
     arrays, meta = load_npz(path)
     missing = [c for c in COLUMNS if c not in arrays]
     if missing:
-        raise DataError(f"{path}: column '{missing[0]}' missing (the archive holds {', '.join(sorted(arrays)) or 'nothing'})")
+        raise DataError(f"{path}: column '{missing[0]}' missing "
+                        f"(the archive holds {', '.join(sorted(arrays)) or 'nothing'})")
     out = {}
     for c in COLUMNS:
         a = np.asarray(arrays[c])

@@ -251,7 +251,8 @@ class Maglev1D(Device):
         one-line ``summary``: the coil's time constant, the command's incremental resistance and
         offset (the current's response to the command), the equilibrium current on settled plateaus
         against the force law, the linearised loop at the reference's levels and at the lowest reading
-        of the compared parts (0.5 % quantile; the rig levitates there), the current reading with the stage off, the position reading of the ball held at
+        of the compared parts (0.5 % quantile; the rig levitates there), the current reading with the stage
+        off, the position reading of the ball held at
         the magnet's face, and whether the logged command follows from the logged signals."""
         from . import checks as _chk
 
@@ -310,15 +311,16 @@ class Maglev1D(Device):
         if r["samples"]:
             model_i = float(self.knobs(cfg, [])["current_offset_a"])
             out["current_at_rest"] = {**r, "model_a": model_i,
-                                      "summary": f"current reading after 0.2 s of zero command {1e3 * r['current_a']:.1f} mA "
+                                      "summary": f"current reading after 0.2 s of zero command "
+                                                 f"{1e3 * r['current_a']:.1f} mA "
                                                  f"({r['samples']} samples), model {1e3 * model_i:.1f} mA"}
         f = _chk.face_reading(arrays, cfg)
         if f["samples"]:
             model_r = float(_phys.reading_m(p, 0.0))
             out["face_reading"] = {**f, "model_m": model_r,
                                    "summary": f"ball held at the magnet's face reads {1e3 * f['reading_m']:.2f} mm"
-                                              f"{' (the ADC clips at 0)' if f['clipped'] else ''} ({f['samples']} samples), "
-                                              f"model {1e3 * model_r:.2f} mm"}
+                                              f"{' (the ADC clips at 0)' if f['clipped'] else ''} "
+                                              f"({f['samples']} samples), model {1e3 * model_r:.2f} mm"}
         k = _ctl.check(arrays, cfg)
         out["controller"] = {**k, "summary": f"the logged command follows from the logged signals through the rig's "
                                              f"controller in {100 * k['within_rounding']:.0f} % of samples within the "
@@ -341,9 +343,11 @@ class Maglev1D(Device):
                 hint = f"; its values reach {np.max(np.abs(y)):.4g}: in mm? this device reads metres"
             elif np.max(np.abs(arrays["i"])) > 100:
                 hint = f"; the current reaches {np.max(np.abs(arrays['i'])):.4g}: in mA? this device reads amperes"
-            raise DataError(f"{source}: column 'y': the ball never levitates (no stretch of {lev['min_duration_s']:g} s "
+            raise DataError(f"{source}: column 'y': the ball never levitates "
+                            f"(no stretch of {lev['min_duration_s']:g} s "
                             f"with y between {1e3 * (st['top_m'] + lev['margin_m']):.3g} and "
-                            f"{1e3 * (st['bottom_m'] - lev['margin_m']):.3g} mm and i >= {lev['min_current_a']:g} A){hint}")
+                            f"{1e3 * (st['bottom_m'] - lev['margin_m']):.3g} mm "
+                            f"and i >= {lev['min_current_a']:g} A){hint}")
 
     def stretches(self, arrays: Mapping, cfg: Mapping) -> list[tuple[int, int]]:
         """The levitated stretches ``[a, b)`` of a log (:mod:`.data`)."""
@@ -399,7 +403,8 @@ class Maglev1D(Device):
         for c, a, q in (("y", y, qy), ("i", i, qi)):
             off = np.abs(a / q - np.round(a / q))
             if np.median(off) > 0.05:
-                out.append(f"{c}: values are not whole ADC counts ({q:.4g} per count): filtered, rescaled, or another rig")
+                out.append(f"{c}: values are not whole ADC counts ({q:.4g} per count): "
+                           f"filtered, rescaled, or another rig")
         lev = np.zeros(len(y), bool)
         for a, b in self.stretches(arrays, cfg):
             lev[a:b] = True
@@ -408,8 +413,9 @@ class Maglev1D(Device):
             pwm = cfg["controller"]["v_ref_v"] / cfg["amplifier"]["pwm_steps"]
             share = float(np.mean(np.abs(u_ctl - u)[lev] <= pwm))
             if share < 0.9:
-                out.append(f"u: the logged command follows from the logged y, i, yd through the rig's controller in only "
-                           f"{100 * share:.0f} % of the levitated samples (within one PWM step): another controller, "
+                out.append(f"u: the logged command follows from the logged y, i, yd through the rig's controller "
+                           f"in only {100 * share:.0f} % of the levitated samples (within one PWM step): "
+                           f"another controller, "
                            f"a reference other than the logged yd, rounded signals, or a spliced log; the replay runs "
                            f"the rig's controller on the logged yd")
         return out
@@ -424,12 +430,14 @@ class Maglev1D(Device):
         usable = self.usable_parts(arr, cfg, stretches)
         if not usable:
             lev = cfg["levitation"]
-            raise DataError(f"{source}: column 'y': the ball levitates but never stays within {1e3 * lev['lost_m']:g} mm "
-                            f"of the reference 'yd' for {lev['settle_s'] + lev['min_usable_s']:g} s after coming within "
+            raise DataError(f"{source}: column 'y': the ball levitates but never stays within "
+                            f"{1e3 * lev['lost_m']:g} mm of the reference 'yd' "
+                            f"for {lev['settle_s'] + lev['min_usable_s']:g} s after coming within "
                             f"{1e3 * lev['capture_m']:g} mm of it: nothing to compare")
         qy, qi = _ctl.position_lsb_m(cfg), _ctl.current_lsb_a(cfg)
         # the controller's state before every sample, from the log itself (it saw whole counts)
-        _, states = _ctl.run(qy * np.round(arr["y"] / qy), qi * np.round(arr["i"] / qi), arr["yd"], _ctl.gains_of(cfg))
+        _, states = _ctl.run(qy * np.round(arr["y"] / qy), qi * np.round(arr["i"] / qi), arr["yd"],
+                             _ctl.gains_of(cfg))
         yd = arr["yd"]
         varies = np.ptp(yd) > 0
         steps = np.count_nonzero(np.diff(yd))
@@ -439,7 +447,8 @@ class Maglev1D(Device):
         n = len(yd)
         left = n - sum(b - a for a, b in usable)
         reason = (f"{left} of {n} samples left out: only the levitated stretches (ball away from both stops by "
-                  f"{1e3 * cfg['levitation']['margin_m']:g} mm, coil current >= {cfg['levitation']['min_current_a']:g} A, "
+                  f"{1e3 * cfg['levitation']['margin_m']:g} mm, "
+                  f"coil current >= {cfg['levitation']['min_current_a']:g} A, "
                   f"for >= {cfg['levitation']['min_duration_s']:g} s) are compared, from "
                   f"{cfg['levitation']['settle_s']:g} s after the ball first comes within "
                   f"{1e3 * cfg['levitation']['capture_m']:g} mm of the reference until it strays "

@@ -417,7 +417,8 @@ def simulate(knobs: np.ndarray, gains: np.ndarray, yd: np.ndarray, segments, ini
     contact = np.zeros(n, dtype=np.int64)
     _simulate(np.asarray(knobs, float), np.asarray(gains, float), np.asarray(yd, float), float(t0_s),
               np.ascontiguousarray(seg[:, 0]), np.ascontiguousarray(seg[:, 1]), np.asarray(init, float).reshape(-1, 7),
-              noise[0], noise[1], noise[2], dither[0], dither[1], dither[2], out["y"], out["i"], out["u"], true, contact)
+              noise[0], noise[1], noise[2], dither[0], dither[1], dither[2],
+              out["y"], out["i"], out["u"], true, contact)
     out["state"] = true
     out["contact"] = contact
     return out
@@ -434,7 +435,8 @@ def knobs_of(cfg, knobs: dict | None = None) -> np.ndarray:
         "pwm_steps": c["amplifier"]["pwm_steps"],
         "position_lsb_m": c["sensors"]["position_full_scale_m"] / c["sensors"]["position_counts"],
         "position_counts": c["sensors"]["position_counts"],
-        "current_lsb_a": c["sensors"]["current_full_scale_v"] / (c["coil"]["r_shunt_ohm"] * c["sensors"]["current_counts"]),
+        "current_lsb_a": (c["sensors"]["current_full_scale_v"]
+                          / (c["coil"]["r_shunt_ohm"] * c["sensors"]["current_counts"])),
         "current_counts": c["sensors"]["current_counts"],
         "top_m": c["stops"]["top_m"], "bottom_m": c["stops"]["bottom_m"], "restitution": c["stops"]["restitution"],
         "substeps": c["replay"]["substeps"],

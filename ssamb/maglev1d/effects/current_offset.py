@@ -53,9 +53,10 @@ def claim(ft, hints: dict, df_hz: float, st) -> float:
 
 def model(hints: dict, record, st):
     if calibrated(st, CONFOUNDED):
-        return ("indistinguishable from the calibrated amplifier.drop_v and sensors.position_offset_m: a current reading "
-                "offset moves the command as the stage's drop does and the current at every level as the sensor's zero "
-                "does; the force's gain, a few per cent off, goes into the calibrated force constant and scale")
+        return ("indistinguishable from the calibrated amplifier.drop_v and sensors.position_offset_m: a current "
+                "reading offset moves the command as the stage's drop does and the current at every level as the "
+                "sensor's zero does; the force's gain, a few per cent off, goes into the calibrated force constant "
+                "and scale")
     return scalar_model(NAME, "offset_a", hints.get("offset_a", 0.0), 2e-3, -0.1, 0.1)
 
 

@@ -76,7 +76,8 @@ def claim(ft, hints: dict, df_hz: float, st) -> float:
 def model(hints: dict, record, st):
     g = record.meta.get("constants", {}).get("v_gain", 1.0)
     _, i0 = operating_point(record)
-    return scalar_model(NAME, "rate_ohm_per_s", hints.get("slope_u_v_per_s", 0.0) * g / max(i0, 1e-3), 1e-3, -0.05, 0.05)
+    return scalar_model(NAME, "rate_ohm_per_s", hints.get("slope_u_v_per_s", 0.0) * g / max(i0, 1e-3),
+                        1e-3, -0.05, 0.05)
 
 
 def report(m, theta, se, significant) -> list[dict]:

@@ -53,9 +53,10 @@ claim = force_like_claim
 
 def model(hints: dict, record, st):
     if calibrated(st, CONFOUNDED):
-        return ("indistinguishable from the calibrated magnet.k_h, sensors.position_gain and sensors.position_offset_m: "
-                "an extra force f makes the linearised ball that of a rig with the reading's scale 1 + f/mg times larger "
-                "and the force constant (1 + f/mg)^3 times smaller (same unstable pole, force gain and current)")
+        return ("indistinguishable from the calibrated magnet.k_h, sensors.position_gain and "
+                "sensors.position_offset_m: an extra force f makes the linearised ball that of a rig with the "
+                "reading's scale 1 + f/mg times larger and the force constant (1 + f/mg)^3 times smaller (same "
+                "unstable pole, force gain and current)")
     c = record.meta.get("constants", {})
     _, i0 = operating_point(record)
     f0 = 2.0 * c.get("weight_n", 0.18) * hints.get("offset_i_a", 0.0) / max(i0, 1e-3)
