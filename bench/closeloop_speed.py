@@ -8,13 +8,17 @@ eleven nominal parameters, two rounds of effects and the joint refit all run). T
 ``run_closeloop`` (load, replays, features, calibration, signatures, fits, joint refit, report
 and figures) into a temporary directory; the simulator's compilation is excluded (a short
 warm-up simulation runs first). The number of simulations, the wall time they take and per
-simulation, the CPU time and the load average are printed with it (the machine is shared).
+simulation, the CPU time and the load average are printed with it (the machine is shared), and
+the host's own speed: the wall time of one fixed simulation (1 s of the default multisine, best
+of 3), so that figures taken on different machines, or on one virtual machine whose host
+changed, can be told apart from a change of the code.
 ``--workers`` runs the independent replays on that many processes (default 2, as the workflow's
 rule); run with ``--workers 1`` for the one-process figure.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import tempfile
 import time
@@ -38,6 +42,7 @@ def main() -> None:
     args = ap.parse_args()
     cfg = load_config()
     simulate(cfg, "multisine", duration_s=0.01, progress=False)      # compile (excluded)
+    host_s = host_reference_s(cfg)
     sims = _count_simulations()
     best = None
     load_before = os.getloadavg()
@@ -57,11 +62,23 @@ def main() -> None:
     print(f"found: {', '.join(e['name'] for e in rep['effects']) or 'nothing'}; unexplained: {rep['unexplained']}")
     print(f"load average (1 min) before/after: {load_before[0]:.2f} / {load_after[0]:.2f} on {os.cpu_count()} CPUs")
     n = max(tm["simulations"], 1)
+    print(f"host reference: 1 s of the default multisine simulated in {host_s:.3f} s wall (best of 3)")
     print(f"workers: {args.workers}")
     print(f"simulations: {tm['simulations']} ({sim_wall:.1f} s of simulation time summed over the workers, "
           f"{sim_wall / n:.3f} s each; {wall / n:.3f} s of the whole analysis's wall time per simulation)")
     print(f"with loading and figures: {wall:.1f} s wall, {cpu:.1f} s CPU of the main process")
     print(f"wall time of one closeloop analysis: {wall:.1f} s (target <= 120 s): {'OK' if wall <= 120 else 'SLOW'}")
+
+
+def host_reference_s(cfg: dict, repeat: int = 3) -> float:
+    """Wall time (s) of one fixed simulation, 1 s of the default multisine, the best of ``repeat``:
+    the host's speed for the simulator, printed beside the analysis's time."""
+    best = math.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        simulate(cfg, "multisine", duration_s=1.0, progress=False)
+        best = min(best, time.perf_counter() - t0)
+    return best
 
 
 def _count_simulations() -> dict:
