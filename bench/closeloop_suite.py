@@ -4,6 +4,7 @@ rig runs, judged against the truth the suite knows.
     python bench/closeloop_suite.py --draws 60 --null 50 --procs 2 --out suite_dir
     python bench/closeloop_suite.py --summary suite_dir        # the summary of what is there
     python bench/closeloop_suite.py --draws 60 --only 2,6,58 --out again   # these draws alone
+    python bench/closeloop_suite.py --draws 60 --only 2,6 --design-seeds 0,1,2 --out seeds  # the estimator's seeds
 
 Each **draw** (:func:`run_draw`) makes a rig: every calibratable nominal parameter perturbed
 uniformly within :data:`ssamb.rig.SUITE_PERTURB`, one library effect (none in a quarter of the
@@ -37,6 +38,15 @@ survive), with the wall time and the load average; each process has its own
 ``NUMBA_CACHE_DIR``. The summary (printed at the end, or alone with ``--summary``) gives the
 pass rate overall and per kind, the coverage of 2-standard-error intervals per parameter and per
 effect parameter, and the false alarms.
+
+**The estimator's own seeds** (``--design-seeds``): the analysis is a simulation-based
+estimate, and its replays' seeds and finite-difference designs (``closeloop.estimate.design_seed``)
+are a random choice of the analysis, not of the rig. Each draw is then analysed once per seed
+(the same rig data); the summary adds the pass rate over the analyses, the draws whose verdict
+depends on the seed, and per parameter the spread of its estimates between the seeds of one
+draw against the standard errors reported with them (``between/se``: the ratio of the pooled
+between-seed variance to the mean reported variance; above 1 the reported errors cannot cover
+the estimator's own randomness).
 """
 from __future__ import annotations
 
@@ -164,8 +174,9 @@ def effect_checks(true: list, rep: dict) -> tuple[list, list, list]:
 
 
 def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, workers: int = 1,
-             progress: bool = False) -> dict:
-    """One draw (module docstring): its experiment, truth, the analysis's findings and the verdict."""
+             progress: bool = False, design_seed: int | None = None) -> dict:
+    """One draw (module docstring): its experiment, truth, the analysis's findings and the verdict;
+    ``design_seed`` sets the estimator's ``closeloop.estimate.design_seed`` (default: the config's)."""
     from scipy import stats
 
     from ssamb.closeloop import _analyse
@@ -177,6 +188,9 @@ def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, worker
     t0 = time.perf_counter()
     load0 = os.getloadavg()[0]
     cfg = load_config()
+    if design_seed is not None:
+        cl = cfg["closeloop"]
+        cfg = {**cfg, "closeloop": {**cl, "estimate": {**(cl.get("estimate") or {}), "design_seed": int(design_seed)}}}
     rng = np.random.default_rng([seed, 29 if null else 23, k])
     exp = draw_experiment(kind, rng)
     if null:
@@ -189,7 +203,8 @@ def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, worker
     noise_seed = int(rng.integers(1, 100_000))
     arrays, meta, scenario = make_rig(tmp, f"d{k}", exp, true, ov, noise_seed)
     rep, art = _analyse(arrays, meta, cfg, source=f"draw {k}", workers=workers, progress=progress)
-    out = {"draw": k, "kind": kind, "null": null, "experiment": exp, "effect": true, "perturbation": delta,
+    out = {"draw": k, "kind": kind, "null": null, "design_seed": design_seed, "experiment": exp, "effect": true,
+           "perturbation": delta,
            "found": [e["name"] for e in rep["effects"]], "effects_found": rep["effects"], "summary": rep["summary"],
            "unexplained": rep["unexplained"], "simulations": rep["timing"]["simulations"],
            "rounds": [{"round": r["round"], "ranking": r["ranking"],
@@ -263,24 +278,27 @@ def _tasks(args) -> list:
     if args.only:
         keep = {int(k) for k in args.only.split(",")}
         t = [x for x in t if x[0] in keep]
-    return t
+    seeds = [int(x) for x in args.design_seeds.split(",")] if args.design_seeds else [None]
+    return [(*x, ds) for x in t for ds in seeds]
 
 
 def _worker(args) -> None:
     out = Path(args.out) / f"w{args.worker}.jsonl"
     tasks = _tasks(args)[args.worker::args.procs]
     with tempfile.TemporaryDirectory() as tmp:
-        for k, kind, null in tasks:
+        for k, kind, null, ds in tasks:
             try:
-                d = run_draw(Path(tmp), k, kind, args.seed, null, args.workers)
+                d = run_draw(Path(tmp), k, kind, args.seed, null, args.workers, design_seed=ds)
             except Exception as exc:           # a crash is a failure of the draw, reported with the others
                 import traceback
 
-                d = {"draw": k, "kind": kind, "null": null, "failures": [f"crash: {type(exc).__name__}: {exc}"],
-                     "traceback": traceback.format_exc()}
+                d = {"draw": k, "kind": kind, "null": null, "design_seed": ds,
+                     "failures": [f"crash: {type(exc).__name__}: {exc}"], "traceback": traceback.format_exc()}
             with open(out, "a") as fh:
                 fh.write(json.dumps(d, default=float) + "\n")
-            print(f"draw {k} ({kind}{', null' if null else ''}): {'pass' if not d['failures'] else d['failures']}"
+            seed_note = "" if ds is None else f", design seed {ds}"
+            print(f"draw {k} ({kind}{', null' if null else ''}{seed_note}): "
+                  f"{'pass' if not d['failures'] else d['failures']}"
                   f" ({d.get('wall_s', 0):.0f} s)", flush=True)
 
 
@@ -312,7 +330,45 @@ def summary(out_dir: Path) -> dict:
     res["null_found"] = [(r["draw"], r["kind"], r["found"]) for r in null if r.get("found")]
     res["null_crashed"] = [(r["draw"], r["failures"]) for r in null
                            if r.get("failures") and "crash" in r["failures"][0]]
+    res["seeds"] = seed_dependence(main)
     return res
+
+
+def seed_dependence(rows: list) -> dict | None:
+    """What the estimator's own seeds change (module docstring), from the analyses of draws run
+    at more than one ``design_seed``: ``{analyses, draws, verdict_differs, per_parameter}`` with,
+    per parameter reported in at least two seeds of a draw, ``[between/se, estimates, draws]`` (the
+    seeds' sample variance over the mean reported variance within each draw, pooled by degrees of
+    freedom);
+    None when no draw has two seeds."""
+    by_draw: dict = {}
+    for r in rows:
+        by_draw.setdefault(r["draw"], []).append(r)
+    multi = {k: v for k, v in by_draw.items() if len({r.get("design_seed") for r in v}) > 1}
+    if not multi:
+        return None
+    acc: dict = {}                  # name -> [sum of dof * ratio, dof, estimates, draws]
+    for v in multi.values():
+        ests: dict = {}
+        for r in v:
+            for c in r.get("coverage", []):
+                ests.setdefault(c["param"], []).append((c["est"], c["se"]))
+        for name, e in ests.items():
+            x = np.array(e)
+            if len(x) < 2 or not np.all(np.isfinite(x)) or not np.all(x[:, 1] > 0):
+                continue
+            # within one draw, scale-free: the seeds' sample variance over the mean reported variance
+            ratio = float(np.var(x[:, 0], ddof=1) / np.mean(x[:, 1] ** 2))
+            a = acc.setdefault(name, [0.0, 0, 0, 0])
+            a[0] += (len(x) - 1) * ratio
+            a[1] += len(x) - 1
+            a[2] += len(x)
+            a[3] += 1
+    per = {n: [a[0] / a[1], a[2], a[3]] for n, a in acc.items()}
+    differs = sorted(k for k, v in multi.items() if len({not r["failures"] for r in v}) > 1)
+    return {"analyses": sum(len(v) for v in multi.values()), "draws": len(multi),
+            "passed": sum(not r["failures"] for v in multi.values() for r in v),
+            "verdict_differs": differs, "per_parameter": per}
 
 
 def print_summary(res: dict) -> None:
@@ -335,6 +391,13 @@ def print_summary(res: dict) -> None:
         print(f"  failed draw {d[0]} ({d[1]}): {d[2]}")
     for d in res["null_found"]:
         print(f"  false alarm in null draw {d[0]} ({d[1]}): {d[2]}")
+    sd = res.get("seeds")
+    if sd:
+        print(f"the estimator's seeds: {sd['draws']} draws analysed at several design seeds, {sd['passed']} of "
+              f"{sd['analyses']} analyses pass; the verdict depends on the seed in {len(sd['verdict_differs'])} "
+              f"draws {sd['verdict_differs']}")
+        for name, (ratio, n, m) in sorted(sd["per_parameter"].items()):
+            print(f"  {name}: between-seed variance / reported se^2 = {ratio:.2f} ({n} estimates in {m} draws)")
 
 
 def main() -> None:
@@ -352,6 +415,8 @@ def main() -> None:
     ap.add_argument("--summary", metavar="DIR", help="print the summary of DIR and exit")
     ap.add_argument("--one", type=int, metavar="K", help="run draw K alone, with the analysis's progress, and print it")
     ap.add_argument("--kind", help="with --one: the draw's experiment kind (default: as the suite cycles)")
+    ap.add_argument("--design-seeds", metavar="S,S,...", help="analyse each draw once per estimator design seed "
+                    "(closeloop.estimate.design_seed; default: the config's, once); with --one, the first")
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.summary:
@@ -360,8 +425,9 @@ def main() -> None:
     if args.one is not None:
         kinds = args.kinds.split(",")
         with tempfile.TemporaryDirectory() as tmp:
+            ds = int(args.design_seeds.split(",")[0]) if args.design_seeds else None
             d = run_draw(Path(tmp), args.one, args.kind or kinds[args.one % len(kinds)], args.seed,
-                         args.null > 0, args.workers, progress=True)
+                         args.null > 0, args.workers, progress=True, design_seed=ds)
         print(json.dumps(d, default=float, indent=1))
         return
     if args.worker is not None:
