@@ -44,6 +44,16 @@ SMOKE_ARGS = ("--configfile", "config.yaml", "smoke.yaml")
 REPLAY_WORKERS = 1 if "PYTEST_XDIST_WORKER" in os.environ else min(2, len(os.sched_getaffinity(0)))
 
 
+def bench_module(name: str):
+    """The script ``bench/<name>.py`` imported as a module (its tests call its functions)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "bench" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def _shared_root() -> Path | None:
     """The folder every process of this test session shares (with pytest-xdist the workers'
     base folders are inside it); None outside a test session (``bench/bad_inputs.py``)."""

@@ -3,20 +3,14 @@ estimator's seeds (``seed_dependence``) and the seed-by-draw tasks."""
 from __future__ import annotations
 
 import argparse
-import importlib.util
-from pathlib import Path
 
 import pytest
-
-ROOT = Path(__file__).resolve().parent.parent
+from conftest import bench_module
 
 
 @pytest.fixture(scope="module")
 def suite():
-    spec = importlib.util.spec_from_file_location("closeloop_suite", ROOT / "bench" / "closeloop_suite.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return bench_module("closeloop_suite")
 
 
 def _row(draw: int, seed: int, est: float, se: float, failures=()) -> dict:

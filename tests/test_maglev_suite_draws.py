@@ -1,18 +1,12 @@
 """The ball's randomized suite (``bench/maglev_suite.py``): how a draw's rig is drawn again."""
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-ROOT = Path(__file__).resolve().parent.parent
+from conftest import bench_module
 
 
 @pytest.fixture(scope="module")
 def suite():
-    spec = importlib.util.spec_from_file_location("maglev_suite", ROOT / "bench" / "maglev_suite.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = bench_module("maglev_suite")
     from ssamb.closeloop.settings import settings_from_config
     from ssamb.device import get_device
 
