@@ -46,7 +46,8 @@ are a random choice of the analysis, not of the rig. Each draw is then analysed 
 depends on the seed, and per parameter the spread of its estimates between the seeds of one
 draw against the standard errors reported with them (``between/se``: the ratio of the pooled
 between-seed variance to the mean reported variance; above 1 the reported errors cannot cover
-the estimator's own randomness).
+the estimator's own randomness; its p-value says whether a ratio above 1 is more than the few
+seeds' chance).
 """
 from __future__ import annotations
 
@@ -335,11 +336,13 @@ def summary(out_dir: Path) -> dict:
 
 
 def seed_dependence(rows: list) -> dict | None:
-    """What the estimator's own seeds change (module docstring), from the analyses of draws run
+    r"""What the estimator's own seeds change (module docstring), from the analyses of draws run
     at more than one ``design_seed``: ``{analyses, draws, verdict_differs, per_parameter}`` with,
-    per parameter reported in at least two seeds of a draw, ``[between/se, estimates, draws]`` (the
-    seeds' sample variance over the mean reported variance within each draw, pooled by degrees of
-    freedom);
+    per parameter reported in at least two seeds of a draw, ``[between/se, estimates, draws, p]``
+    (the seeds' sample variance over the mean reported variance within each draw, pooled by degrees
+    of freedom; ``p`` the chance of a ratio at least this large if the reported errors were the
+    seeds' spread: its sum over the draws, each times its degrees of freedom, is then about
+    :math:`\chi^2` with the degrees of freedom summed -- few seeds make a ratio of a few no evidence);
     None when no draw has two seeds."""
     by_draw: dict = {}
     for r in rows:
@@ -364,7 +367,7 @@ def seed_dependence(rows: list) -> dict | None:
             a[1] += len(x) - 1
             a[2] += len(x)
             a[3] += 1
-    per = {n: [a[0] / a[1], a[2], a[3]] for n, a in acc.items()}
+    per = {n: [a[0] / a[1], a[2], a[3], float(stats.chi2.sf(a[0], a[1]))] for n, a in acc.items()}
     differs = sorted(k for k, v in multi.items() if len({not r["failures"] for r in v}) > 1)
     return {"analyses": sum(len(v) for v in multi.values()), "draws": len(multi),
             "passed": sum(not r["failures"] for v in multi.values() for r in v),
@@ -396,8 +399,9 @@ def print_summary(res: dict) -> None:
         print(f"the estimator's seeds: {sd['draws']} draws analysed at several design seeds, {sd['passed']} of "
               f"{sd['analyses']} analyses pass; the verdict depends on the seed in {len(sd['verdict_differs'])} "
               f"draws {sd['verdict_differs']}")
-        for name, (ratio, n, m) in sorted(sd["per_parameter"].items()):
-            print(f"  {name}: between-seed variance / reported se^2 = {ratio:.2f} ({n} estimates in {m} draws)")
+        for name, (ratio, n, m, p) in sorted(sd["per_parameter"].items()):
+            print(f"  {name}: between-seed variance / reported se^2 = {ratio:.2f} ({n} estimates in {m} draws; "
+                  f"p {p:.2g} if the errors covered the seeds' spread)")
 
 
 def main() -> None:

@@ -25,7 +25,7 @@ def test_the_between_seed_ratio_is_the_seeds_sample_variance_over_the_reported_v
     rows = [_row(0, 0, 0.0, 1.0), _row(0, 1, 2.0, 1.0),
             _row(1, 0, 1.0, 3.0), _row(1, 1, 1.0, 3.0), _row(1, 2, 4.0, 3.0, ["x"])]
     sd = suite.seed_dependence(rows)
-    ratio, n, m = sd["per_parameter"]["p"]
+    ratio, n, m, _ = sd["per_parameter"]["p"]
     assert ratio == pytest.approx((2.0 + 2.0 / 3.0) / 3.0)
     assert (n, m) == (5, 2)
     assert sd["verdict_differs"] == [1]
@@ -47,3 +47,15 @@ def test_each_draw_is_analysed_once_per_design_seed(suite):
                                   (2, "multisine", False, 0), (2, "multisine", False, 5)]
     args.design_seeds, args.only = None, None
     assert [t[3] for t in suite._tasks(args)] == [None] * 4
+
+
+def test_the_ratios_p_value_is_the_chi_square_tail_of_its_degrees_of_freedom(suite):
+    """One draw at three seeds, estimates 0, 0, 3 with se 1: sample variance 3, ratio 3 on 2
+    degrees of freedom; if the errors covered the seeds' spread, 2 x ratio would be chi-square with 2
+    degrees of freedom, whose tail is exp(-x/2): p = exp(-3)."""
+    import math
+
+    sd = suite.seed_dependence([_row(0, s, e, 1.0) for s, e in enumerate((0.0, 0.0, 3.0))])
+    ratio, n, m, p = sd["per_parameter"]["p"]
+    assert (ratio, n, m) == (pytest.approx(3.0), 3, 1)
+    assert p == pytest.approx(math.exp(-3.0))

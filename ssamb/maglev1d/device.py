@@ -252,8 +252,8 @@ class Maglev1D(Device):
         offset (the current's response to the command), the equilibrium current on settled plateaus
         against the force law, the linearised loop at the reference's levels and at the lowest reading
         of the compared parts (0.5 % quantile; the rig levitates there), the current reading with the stage
-        off, the position reading of the ball held at
-        the magnet's face, and whether the logged command follows from the logged signals."""
+        off, the position reading of the ball held at the magnet's face, and whether the logged command
+        follows from the logged signals."""
         from . import checks as _chk
 
         from .physics import equilibrium_current_a, inductance_h
