@@ -1617,3 +1617,73 @@ def test_a_significant_screen_rejected_for_a_view_it_makes_worse_is_continued(mo
     assert (out is not None) == continued
     if continued:
         assert calls == [([0.01], [[0.0, 44.7e-6]], False)]
+
+
+@settings(max_examples=4, deadline=None)
+@given(st.integers(0, 10_000), st.sampled_from([3, 4, 8]))
+def test_replay_noise_estimates_the_off_diagonal_squared_covariance_without_bias(seed, m):
+    """Over many sets of ``m`` runs, the estimate of sum_{i != j} sigma_ij^2 averages to its value:
+    0 for independent entries, |c|^4 - sum c_j^4 for a mode c that moves every entry, where the
+    plain sample estimate is biased by tr(Sigma)^2/(m-1)."""
+    from ssamb.closeloop.estimate import replay_noise
+
+    rng = np.random.default_rng(seed)
+    N = 120
+    c = rng.standard_normal(N)
+    c *= 8.0 / np.linalg.norm(c)
+    cases = [(lambda: 1.2 * rng.standard_normal((m, N)), 0.0, 30.0),
+             (lambda: np.outer(rng.standard_normal(m), c) + 0.5 * rng.standard_normal((m, N)),
+              64.0 ** 2 - float(np.sum(c ** 4)), 0.0)]
+    for draw, t2, atol in cases:
+        est = [replay_noise(draw(), None)[1] for _ in range(1500)]
+        assert np.mean(est) == pytest.approx(t2, rel=0.1, abs=atol)
+    vg, _ = replay_noise(cases[0][0](), [np.arange(N // 2), np.arange(N // 2, N)])
+    assert vg.shape == (2,)
+
+
+def test_noise_floor_of_independent_quiet_replays_is_the_old_one():
+    """Replays quieter than the whitening's unit and independent between entries: the floor is
+    N(1 + rho/m) with N degrees of freedom; a group whose replays are noisier than the unit adds
+    its excess (the rig carries it too); one mode shared by many entries leaves few degrees of
+    freedom (Satterthwaite: f^2 / tr(Sigma_a^2))."""
+    from ssamb.closeloop.estimate import noise_floor
+
+    f, nu = noise_floor(np.array([100, 50]), np.array([0.4, 0.4]), 0.0, 4)
+    assert f == pytest.approx(150 * 1.1) and nu == pytest.approx(150)
+    f, _ = noise_floor(np.array([100, 50]), np.array([0.4, 3.0]), -5.0, 4)
+    assert f == pytest.approx(100 * 1.1 + 50 * 3.75)
+    f, nu = noise_floor(np.array([150]), np.array([0.4]), 60.0 ** 2, 4)
+    assert nu == pytest.approx(f * f / (150 * 1.1 ** 2 + 1.25 ** 2 * 3600))
+    assert nu < 20
+
+
+
+def test_a_shared_mode_of_the_replays_is_no_misfit():
+    """Every replay (and the data, one more) carries a mode that moves all entries together, the
+    data's realisation of it 2.5 standard deviations out: at the truth the cost is far above
+    N(1 + rho/m) for independent entries, yet within the noise once its degrees of freedom are
+    counted; a model with a misfit beside it stays far above."""
+    from ssamb.closeloop.estimate import _far_above
+
+    N = 200
+    rng = np.random.default_rng(5)
+    col = rng.standard_normal(N)
+    c = rng.standard_normal(N)
+    c *= 10.0 / np.linalg.norm(c)
+    e_data = rng.standard_normal(N) + 2.5 * c
+
+    def evaluate(theta, seed, misfit=0.0):
+        g = np.random.default_rng(seed)
+        return (3.0 * col * (theta[0] - 1.0) - e_data + 0.3 * g.standard_normal(N) + g.standard_normal() * c
+                + misfit)
+
+    def fit(misfit):
+        prob = Problem(("a",), np.zeros(1), np.array([np.inf]), np.array([0.5]), np.array([-5.0]),
+                       np.array([5.0]), lambda t, sd: evaluate(t, sd, misfit), start=np.array([1.0]),
+                       groups=[np.arange(N)])
+        return map_fit(prob, EstimateSettings(max_iter=2, short_iter=0))
+    at = fit(0.0)
+    assert at.chi2 > 3 * at.floor / 2 and _far_above(at.chi2, at.n, at.floor, 1e-3)
+    assert at.floor_dof < 10 and not _far_above(at.chi2, at.n, at.floor, 1e-3, at.floor_dof)
+    off = fit(np.sqrt(15.0) * np.sign(col))     # a misfit no replay's noise makes: |u|^2 = 3000
+    assert _far_above(off.chi2, off.n, off.floor, 1e-3, off.floor_dof)

@@ -125,9 +125,10 @@ class EstimateSettings:
         describe: there the cost says nothing about the direction, only that the step was too long.
     short_alpha, short_iter : float, int
         The truth-free check of a fit that has not converged: its cost :math:`\\|a\\|^2` above the
-        floor the noise gives, :math:`f = N(1 + \\rho/m)` (the data's unit noise per whitened entry
-        and the model noise of the anchor, the mean of :math:`m` centre runs), beyond the upper
-        ``short_alpha`` quantile of :math:`(f/N)\\,\\chi^2_N` (:func:`_far_above`). While it holds,
+        floor the noise gives, :math:`f` (the data's noise per whitened entry, at least the unit,
+        and the model noise of the anchor, the mean of :math:`m` centre runs: :func:`noise_floor`),
+        beyond the upper ``short_alpha`` quantile of :math:`(f/\\nu)\\,\\chi^2_\\nu`, :math:`\\nu` the
+        effective degrees of freedom of a noise that moves whole views together (:func:`_far_above`). While it holds,
         the fit goes on for up to ``short_iter`` iterations beyond ``max_iter`` (and may refresh or
         widen its steps, ``max_refresh``; ``short_iter`` 0: neither, as for a candidate's fit, a
         screen on a base that misfits by design); a fit that ends unconverged with it still
@@ -312,8 +313,10 @@ class MapFit:
         Per iteration: centre, step, chi2, rho.
     centre_runs : list
         The residuals of the last centre's runs.
-    floor : float
-        The cost the noise alone gives at the last centre, :math:`N(1 + \\rho/m)`.
+    floor, floor_dof : float
+        The cost the noise alone gives at the last centre and its effective degrees of freedom
+        (:func:`noise_floor`: :math:`N(1 + \\rho/m)` and :math:`N` where the replays are quieter
+        than the whitening's unit and their noise is independent between entries; 0: :math:`N`).
     stopped_short : bool
         The fit ended without converging (iterations out, or stalled) while its cost was still
         far above :attr:`floor` (``short_alpha`` of :class:`EstimateSettings`): a better model may
@@ -337,6 +340,7 @@ class MapFit:
     history: list = field(default_factory=list)
     centre_runs: list = field(default_factory=list)
     floor: float = 0.0
+    floor_dof: float = 0.0
     stopped_short: bool = False
     infeasible: int = 0
 
@@ -814,13 +818,69 @@ def _design(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs:
     return k, bad_runs
 
 
-def _far_above(chi2: float, n: int, floor: float, alpha: float) -> bool:
-    """Whether a cost ``chi2`` of ``n`` whitened entries lies beyond the upper ``alpha`` quantile of
-    the noise alone, :math:`(f/n)\\,\\chi^2_n` with the floor :math:`f` (:class:`EstimateSettings`
-    ``short_alpha``)."""
+def _far_above(chi2: float, n: int, floor: float, alpha: float, dof: float = 0.0) -> bool:
+    r"""Whether a cost ``chi2`` of ``n`` whitened entries lies beyond the upper ``alpha`` quantile of
+    the noise alone, :math:`(f/\nu)\,\chi^2_\nu` with the floor :math:`f` and the noise's
+    effective degrees of freedom :math:`\nu` (``dof``; ``n`` when 0: independent entries;
+    :func:`replay_noise`) (:class:`EstimateSettings` ``short_alpha``)."""
     from scipy import stats
 
-    return n > 0 and chi2 > floor / n * float(stats.chi2.isf(alpha, n))
+    nu = float(dof) if dof > 0 else float(n)
+    return n > 0 and chi2 > floor / nu * float(stats.chi2.isf(alpha, nu))
+
+
+def replay_noise(C: np.ndarray, groups) -> tuple[np.ndarray, float]:
+    r"""What replicate runs ``C`` (``m`` x ``N``, distinct seeds, one point) say of one replay's noise:
+    per group of entries the mean variance :math:`\bar v_g`, and the off-diagonal part of
+    :math:`\mathrm{tr}\,\Sigma_r^2`, :math:`\sum_{i \ne j}\sigma_{ij}^2`.
+
+    A replay's own state (hysteresis, the current loops, a slow drift of a coil current) moves
+    whole views together, so its covariance :math:`\Sigma_r` is not diagonal, and a cost's spread,
+    :math:`2\,\mathrm{tr}\,\Sigma^2`, far exceeds that of independent entries. With :math:`W =
+    (m-1)S` the scatter matrix of the runs (Wishart, :math:`n = m - 1` degrees of freedom),
+    :math:`E\,\mathrm{tr}W^2 = n(n+1)\,t_2 + n\,t_1^2` and :math:`E(\mathrm{tr}W)^2 = n^2 t_1^2 +
+    2n\,t_2` (:math:`t_k = \mathrm{tr}\,\Sigma_r^k`), so
+
+    .. math:: \hat t_2 = \frac{n\,\mathrm{tr}W^2 - (\mathrm{tr}W)^2}{n(n+2)(n-1)}
+
+    is unbiased (from the :math:`m \times m` Gram matrix of the centred runs), and so is
+    :math:`\hat t_2 - \frac{n}{n+2}\sum_j \hat v_j^2` for its off-diagonal part (:math:`E\,\hat
+    v^2 = v^2 (n+2)/n`). NaN with fewer than three runs.
+    """
+    C = np.asarray(C, float)
+    m = len(C)
+    v = C.var(axis=0, ddof=1) if m > 1 else np.zeros(C.shape[1] if C.ndim == 2 else 0)
+    vg = np.array([float(np.mean(v[g])) if len(g) else 0.0 for g in (groups or [np.arange(len(v))])])
+    if m < 3:
+        return vg, float("nan")
+    X = C - C.mean(axis=0)
+    G = X @ X.T
+    n = m - 1
+    t2 = (n * float(np.sum(G * G)) - float(np.trace(G)) ** 2) / (n * (n + 2) * (n - 1))
+    return vg, t2 - n / (n + 2) * float(v @ v)
+
+
+def noise_floor(sizes: np.ndarray, vg: np.ndarray, t2_off: float, m: int) -> tuple[float, float]:
+    r"""The cost the noise alone gives an anchor (the mean of ``m`` replays) and its effective
+    degrees of freedom.
+
+    The rig is one more replay of the same physics: where a group's replay variance
+    :math:`\bar v_g` (:func:`replay_noise`) exceeds the whitening's unit, the data carry it too.
+    The anchor's variance per entry of group :math:`g` is then :math:`d_g = \max(1, \bar v_g) +
+    \bar v_g/m`, the cost's mean :math:`f = \sum_g n_g d_g` (:math:`N(1 + \rho/m)` where the
+    replays are quieter than the unit), and its variance :math:`2\,\mathrm{tr}\,\Sigma_a^2 \approx
+    2[\sum_g n_g d_g^2 + (1 + 1/m)^2 t_{off}]` with :math:`t_{off} = \sum_{i\ne j}\sigma_{ij}^2`
+    (``t2_off``, the data carrying the replays' correlations too; negative estimates count as 0):
+    the cost is :math:`(f/\nu)\,\chi^2_\nu` with :math:`\nu = f^2/\mathrm{tr}\,\Sigma_a^2`
+    (Satterthwaite), :math:`N` for independent entries of equal variance. ``sizes``: the
+    groups' entries. Returns ``(f, nu)``.
+    """
+    sizes, vg = np.asarray(sizes, float), np.asarray(vg, float)
+    d = np.maximum(1.0, vg) + vg / m
+    f = float(np.sum(sizes * d))
+    off = float(t2_off) if np.isfinite(t2_off) and t2_off > 0 else 0.0
+    tr2 = float(np.sum(sizes * d * d)) + (1.0 + 1.0 / m) ** 2 * off
+    return f, float(min(np.sum(sizes), max(1.0, f * f / tr2)))
 
 
 def feasible_start(prob: Problem, theta: np.ndarray, seeds: int = 2) -> tuple:
@@ -1009,18 +1069,28 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     k, bad = _design(prob, theta, k, s, runs, log, base_step)
     infeasible += bad
     rhos = [float(np.mean(C.var(axis=0, ddof=1)))]
+    groups = prob.groups if prob.groups and sum(len(g) for g in prob.groups) == C.shape[1] else None
+    spread = [replay_noise(C, groups)]          # per centre: the groups' replay variance, tr(Sigma_r^2)
     a, trust, history, converged, replicates, probes, refresh, widened = C.mean(axis=0), 1.0, [], False, 0, 0, 0, 0
     d = np.zeros(len(theta))
     tried: list = []                    # the centre's cost at each step tried
     best = (theta.copy(), float(a @ a), a, C, dropped)  # the best centre visited: fewest drops, then lowest cost
 
+    sizes = np.array([len(g) for g in (groups or [np.arange(len(a))])], float)
+
+    def floor_dof() -> tuple[float, float]:
+        # the cost the noise alone gives and its degrees of freedom (noise_floor): the data's
+        # noise per whitened entry, and the anchor's model noise (the mean of len(C) runs)
+        vg = np.mean([v for v, _ in spread], axis=0)
+        t2s = [t for _, t in spread if np.isfinite(t)]    # the off-diagonal tr(Sigma_r^2), pooled
+        return noise_floor(sizes, vg, float(np.mean(t2s)) if t2s else float("nan"), len(C))
+
     def floor() -> float:
-        # the cost the noise alone gives: unit data noise per whitened entry, and the anchor's
-        # model noise (the mean of len(C) runs)
-        return len(a) * (1.0 + float(np.mean(rhos)) / len(C))
+        return floor_dof()[0]
 
     for it in range(s.max_iter + s.short_iter + s.moving_iter):
-        short = s.short_iter > 0 and _far_above(float(a @ a), len(a), floor(), s.short_alpha)
+        fl, dof = floor_dof()
+        short = s.short_iter > 0 and _far_above(float(a @ a), len(a), fl, s.short_alpha, dof)
         limit = s.max_iter + (s.short_iter if short else 0)
         its = [h for h in history if "step_norm" in h]
         # on its way: the last step asked for far more than the posterior spread and the one
@@ -1053,7 +1123,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         rho = float(np.mean(rhos))
         history.append({"iteration": it, "theta": theta.tolist(), "step": d.tolist(), "chi2": float(a @ a),
                         "rho": rho, "step_norm": norm, "determined_directions": int(keep.shape[1]), "trust": trust,
-                        "floor": floor()})
+                        "floor": floor(), "floor_dof": floor_dof()[1]})
         if log is not None:
             log(f"iteration {it}: chi2 {a @ a:.1f} (N {len(a)}, noise floor {floor():.0f}), step {norm:.2f} (posterior "
                 f"metric, per parameter), {keep.shape[1]} determined directions")
@@ -1127,6 +1197,8 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
                     f"trust region {trust:.3g}")
             continue
         rhos.append(float(np.mean(Ct.var(axis=0, ddof=1))) if len(Ct) > 1 else 0.0)
+        if len(Ct) > 1:
+            spread.append(replay_noise(Ct, groups))
         at = Ct.mean(axis=0)
         if bad < dropped or at @ at <= a @ a + _margin(len(a), rho / max(s.centre_runs, 1), float(a @ a)):
             # fewer replays that drop the body come first: the anchors of centres with and without
@@ -1171,8 +1243,8 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
         # the iterations ran out while the estimate was still moving: the last step's size is
         # part of its uncertainty
         cov, cov_m = cov + np.outer(d, d), cov_m + np.outer(d, d)
-    fl = floor()
-    short = (not converged) and _far_above(float(a @ a), len(a), fl, s.short_alpha)
+    fl, dof = floor_dof()
+    short = (not converged) and _far_above(float(a @ a), len(a), fl, s.short_alpha, dof)
     if short and log is not None:
         log(f"stopped short: not converged, its cost {a @ a:.1f} is {a @ a / fl:.3g} times the noise floor {fl:.0f}")
     history.append({"noise_factors": facs, "misfit_factors": facs_m, "infeasible": infeasible,
@@ -1180,7 +1252,8 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     return MapFit(theta=theta_hat, cov=cov, cov_misfit=cov_m, B=B, info=info, chi2=float(a @ a), n=len(a),
                   rho=float(np.mean(rhos)),
                   evaluations=len(runs) + infeasible, iterations=len(history) - 1, converged=converged,
-                  history=history, centre_runs=list(reps), floor=fl, stopped_short=short, infeasible=infeasible)
+                  history=history, centre_runs=list(reps), floor=fl, floor_dof=dof, stopped_short=short,
+                  infeasible=infeasible)
 
 
 def drops_and_cost(res) -> tuple[int, float]:

@@ -866,7 +866,7 @@ def other_basins(prob: Problem, models: list, cuts: np.ndarray, fit, est: Estima
     The fit kept has the search in its history (``other_basins``: the starts, their costs, the
     one taken or None), which :func:`optimum_of` reports.
     """
-    if n <= 0 or not _far_above(fit.chi2, fit.n, fit.floor, est.short_alpha):
+    if n <= 0 or not _far_above(fit.chi2, fit.n, fit.floor, est.short_alpha, fit.floor_dof):
         return fit
     pts = []
     for m, lo, hi in zip(models, cuts[:-1], cuts[1:]):
