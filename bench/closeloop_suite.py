@@ -174,24 +174,12 @@ def effect_checks(true: list, rep: dict) -> tuple[list, list, list]:
     return fails, cov, missed
 
 
-def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, workers: int = 1,
-             progress: bool = False, design_seed: int | None = None) -> dict:
-    """One draw (module docstring): its experiment, truth, the analysis's findings and the verdict;
-    ``design_seed`` sets the estimator's ``closeloop.estimate.design_seed`` (default: the config's)."""
-    from scipy import stats
+def draw_rig(tmp: Path, k: int, kind: str, seed: int, cfg: dict, null: bool = False) -> dict:
+    """Draw ``k`` of the suite ``seed`` (module docstring): its experiment, perturbation
+    (``overrides`` in values, ``delta`` relative), effects and logged data (``arrays``, ``meta``,
+    ``scenario``)."""
+    from ssamb.rig import SUITE_EFFECTS, draw_effect, draw_experiment, draw_perturbation
 
-    from ssamb.closeloop import _analyse
-    from ssamb.closeloop.excess import truth_advantage
-    from ssamb.closeloop.fit import Base
-    from ssamb.config import load_config
-    from ssamb.rig import SUITE_EFFECTS, draw_effect, draw_experiment, draw_perturbation, effective_truth
-
-    t0 = time.perf_counter()
-    load0 = os.getloadavg()[0]
-    cfg = load_config()
-    if design_seed is not None:
-        cl = cfg["closeloop"]
-        cfg = {**cfg, "closeloop": {**cl, "estimate": {**(cl.get("estimate") or {}), "design_seed": int(design_seed)}}}
     rng = np.random.default_rng([seed, 29 if null else 23, k])
     exp = draw_experiment(kind, rng)
     if null:
@@ -203,6 +191,31 @@ def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, worker
         true = [draw_effect(SUITE_EFFECTS[int(rng.integers(len(SUITE_EFFECTS)))], rng)] if with_effect else []
     noise_seed = int(rng.integers(1, 100_000))
     arrays, meta, scenario = make_rig(tmp, f"d{k}", exp, true, ov, noise_seed)
+    return {"experiment": exp, "overrides": ov, "delta": delta, "effects": true, "arrays": arrays, "meta": meta,
+            "scenario": scenario}
+
+
+def run_draw(tmp: Path, k: int, kind: str, seed: int, null: bool = False, workers: int = 1,
+             progress: bool = False, design_seed: int | None = None) -> dict:
+    """One draw (module docstring): its experiment, truth, the analysis's findings and the verdict;
+    ``design_seed`` sets the estimator's ``closeloop.estimate.design_seed`` (default: the config's)."""
+    from scipy import stats
+
+    from ssamb.closeloop import _analyse
+    from ssamb.closeloop.excess import truth_advantage
+    from ssamb.closeloop.fit import Base
+    from ssamb.config import load_config
+    from ssamb.rig import effective_truth
+
+    t0 = time.perf_counter()
+    load0 = os.getloadavg()[0]
+    cfg = load_config()
+    if design_seed is not None:
+        cl = cfg["closeloop"]
+        cfg = {**cfg, "closeloop": {**cl, "estimate": {**(cl.get("estimate") or {}), "design_seed": int(design_seed)}}}
+    d = draw_rig(tmp, k, kind, seed, cfg, null)
+    exp, true, delta, arrays, meta, scenario = (d[x] for x in ("experiment", "effects", "delta", "arrays", "meta",
+                                                               "scenario"))
     rep, art = _analyse(arrays, meta, cfg, source=f"draw {k}", workers=workers, progress=progress)
     out = {"draw": k, "kind": kind, "null": null, "design_seed": design_seed, "experiment": exp, "effect": true,
            "perturbation": delta,

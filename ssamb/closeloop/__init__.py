@@ -37,22 +37,25 @@ from ..io import DataError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["analyse", "run_closeloop", "write_analysis", "DataError"]
+__all__ = ["analyse", "comparison_of", "run_closeloop", "write_analysis", "DataError"]
 
 
-def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", progress: bool = False,
-             workers: int = 1, device="amb"):
+def comparison_of(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", workers: int = 1,
+                  device="amb") -> dict:
+    """The analysis's setting before any search: the device, its settings and calibration specs,
+    the record, its split, the replayer (close it: ``replay.close()``) and the comparison, its
+    noise read about the model the calibration starts from and the lines of the residual set.
+
+    Returns a dict with ``device, settings, specs, notes, record, split, replay, comparison``.
+    """
     from ..device import get_device
     from .calibration import bounded, parameter_specs
     from .comparison import Comparison
     from .data import make_split
     from .replay import Replayer
-    from .report import build_report
     from .residual import compute_features
-    from .search import search
     from .settings import settings_from_config
 
-    t0 = time.perf_counter()
     dev = get_device(device)
     settings = settings_from_config(cfg, dev)
     specs = parameter_specs(cfg, settings.calibration or {})
@@ -72,7 +75,23 @@ def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data",
         ft = compute_features(rec, cmp.fit.frame, dev.views(rec.channels), dev.views(cmp.prediction(at or None)),
                               settings)
         cmp.set_lines(sorted(ln["f_hz"] for ln in ft.lines))
-        result = search(cmp, specs, settings, progress=progress)
+    except BaseException:
+        replay.close()
+        raise
+    return {"device": dev, "settings": settings, "specs": specs, "notes": notes, "record": rec, "split": split,
+            "replay": replay, "comparison": cmp}
+
+
+def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data", progress: bool = False,
+             workers: int = 1, device="amb"):
+    from .report import build_report
+    from .search import search
+
+    t0 = time.perf_counter()
+    c = comparison_of(arrays, meta, cfg, source, workers, device)
+    replay, settings, rec, split = c["replay"], c["settings"], c["record"], c["split"]
+    try:
+        result = search(c["comparison"], c["specs"], settings, progress=progress)
     finally:
         replay.close()                  # the worker processes
     wall_s = time.perf_counter() - t0
@@ -80,9 +99,10 @@ def _analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, source: str = "data",
              replay.wall_s / max(replay.n_sims, 1), wall_s)
     # wall times go to the log only: closeloop.json is byte-reproducible
     report = build_report(rec, split, result, settings, source, {"simulations": replay.n_sims})
-    if notes:
-        report["notes"] = list(notes) + report["notes"]
-    return report, {"record": rec, "split": split, "search": result, "comparison": cmp, "settings": settings}
+    if c["notes"]:
+        report["notes"] = list(c["notes"]) + report["notes"]
+    return report, {"record": rec, "split": split, "search": result, "comparison": c["comparison"],
+                    "settings": settings}
 
 
 def analyse(arrays: Mapping, meta: Mapping, cfg: Mapping, workers: int = 1, device="amb") -> dict:
