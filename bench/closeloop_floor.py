@@ -73,7 +73,7 @@ def truth_anchors(k: int, seed: int, kind: str, anchors: int, groups: bool = Fal
                 continue
             r = C.mean(axis=0)
             cost, n = float(r @ r), len(r)
-            vg, t2 = replay_noise(C, gs)
+            vg, t2, _ = replay_noise(C, gs)
             f, nu = noise_floor(np.array([len(g) for g in gs]), vg, t2, len(C))
             f_ind = n * (1.0 + float(np.mean(C.var(axis=0, ddof=1))) / len(C))
             row = {"draw": k, "kind": kind, "anchor": a, "cost": cost, "n": n, "floor": f, "dof": nu,

@@ -389,7 +389,8 @@ def _surrogate(runs: list, centre: np.ndarray, step: np.ndarray, radius: float, 
     return coef[1:].T, Y.shape[1] * rho * np.linalg.pinv(X.T @ X)[1:, 1:]
 
 
-def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "EstimateSettings", prior_sd: np.ndarray):
+def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "EstimateSettings", prior_sd: np.ndarray,
+                 entries: float = 0.0):
     r"""Data information corrected for the Jacobian's noise, and the directions worth stepping along.
 
     :math:`\hat{\mathcal I} = \hat B^T\hat B - N s^2 (X^TX)^{-1}` (errors in variables: the
@@ -405,6 +406,13 @@ def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "Estima
     ``min_information`` (else the data are not informative there) -- or, for a direction mostly
     along parameters without a prior (an effect's), at least one step's worth (a step :math:`h`
     moves the features by a standard deviation).
+
+    The noise's eigenvalues scatter about 1: for a noise worth :math:`\nu` independent entries
+    (``entries``, :func:`effective_entries`; :math:`N` when 0) the largest of :math:`p` comes near
+    the Marchenko-Pastur edge :math:`(1 + \sqrt{p/\nu})^2`, which a noise that moves whole views
+    together (few effective entries) takes above ``min_snr``: pure noise would pass for a
+    determined direction. The threshold is therefore ``min_snr`` times
+    :math:`[(1 + \sqrt{p/\nu}) / (1 + \sqrt{p/N})]^2`, ``min_snr`` itself for independent entries.
 
     Returns ``(info, keep, pending)``: the corrected information, the kept directions (columns,
     in scaled coordinates) and the number of directions that look informative but whose
@@ -424,8 +432,11 @@ def _information(B: np.ndarray, noise: np.ndarray, scale: np.ndarray, s: "Estima
     flat = np.isinf(np.asarray(prior_sd, float))
     share_flat = np.sum(u[flat] ** 2, axis=0) / np.maximum(np.sum(u * u, axis=0), 1e-300)
     need = np.where(share_flat > 0.5, 1.0, s.min_information)
-    keep = u[:, (lam >= s.min_snr) & (per_scale >= need)]
-    pending = int(np.sum((lam < s.min_snr) & (per_scale >= need)))
+    N, p = B.shape
+    nu = min(float(entries), float(N)) if entries > 0 else float(N)
+    snr = s.min_snr * ((1.0 + math.sqrt(p / nu)) / (1.0 + math.sqrt(p / max(N, 1)))) ** 2 if N else s.min_snr
+    keep = u[:, (lam >= snr) & (per_scale >= need)]
+    pending = int(np.sum((lam < snr) & (per_scale >= need)))
     return info, keep, pending
 
 
@@ -843,21 +854,38 @@ def replay_noise(C: np.ndarray, groups) -> tuple[np.ndarray, float]:
 
     .. math:: \hat t_2 = \frac{n\,\mathrm{tr}W^2 - (\mathrm{tr}W)^2}{n(n+2)(n-1)}
 
-    is unbiased (from the :math:`m \times m` Gram matrix of the centred runs), and so is
-    :math:`\hat t_2 - \frac{n}{n+2}\sum_j \hat v_j^2` for its off-diagonal part (:math:`E\,\hat
-    v^2 = v^2 (n+2)/n`). NaN with fewer than three runs.
+    is unbiased (from the :math:`m \times m` Gram matrix of the centred runs), and so are
+    :math:`\frac{n}{n+2}\sum_j \hat v_j^2` for its diagonal part (:math:`E\,\hat v^2 = v^2
+    (n+2)/n`) and the difference for its off-diagonal part.
+
+    Returns ``(vg, t2_off, t2_diag)``; the last two NaN with fewer than three runs.
     """
     C = np.asarray(C, float)
     m = len(C)
     v = C.var(axis=0, ddof=1) if m > 1 else np.zeros(C.shape[1] if C.ndim == 2 else 0)
     vg = np.array([float(np.mean(v[g])) if len(g) else 0.0 for g in (groups or [np.arange(len(v))])])
     if m < 3:
-        return vg, float("nan")
+        return vg, float("nan"), float("nan")
     X = C - C.mean(axis=0)
     G = X @ X.T
     n = m - 1
     t2 = (n * float(np.sum(G * G)) - float(np.trace(G)) ** 2) / (n * (n + 2) * (n - 1))
-    return vg, t2 - n / (n + 2) * float(v @ v)
+    diag = n / (n + 2) * float(v @ v)
+    return vg, t2 - diag, diag
+
+
+def effective_entries(sizes: np.ndarray, vg: np.ndarray, t2_off: float, t2_diag: float) -> float:
+    r"""The number of independent entries a replay's noise is worth,
+    :math:`\nu = (\mathrm{tr}\,\Sigma_r)^2 / \mathrm{tr}\,\Sigma_r^2` (:func:`replay_noise`'s
+    parts; negative off-diagonal estimates count as 0), at most the entries :math:`N`; :math:`N`
+    where the parts are unknown. A noise that moves whole views together is worth few."""
+    sizes = np.asarray(sizes, float)
+    n = float(np.sum(sizes))
+    t1 = float(np.sum(sizes * np.asarray(vg, float)))
+    if not (np.isfinite(t2_diag) and t2_diag > 0 and t1 > 0):
+        return n
+    off = float(t2_off) if np.isfinite(t2_off) and t2_off > 0 else 0.0
+    return float(min(n, max(1.0, t1 * t1 / (off + t2_diag))))
 
 
 def noise_floor(sizes: np.ndarray, vg: np.ndarray, t2_off: float, m: int) -> tuple[float, float]:
@@ -1010,7 +1038,8 @@ def _no_progress(costs: list, window: int, margin: float) -> bool:
     return window > 0 and len(costs) > window and costs[-1 - window] - costs[-1] < margin
 
 
-def _local_model(prob: Problem, runs: list, theta: np.ndarray, C: np.ndarray, rhos: list, s: EstimateSettings):
+def _local_model(prob: Problem, runs: list, theta: np.ndarray, C: np.ndarray, rhos: list, s: EstimateSettings,
+                 entries: float = 0.0):
     """The local model at a centre: the surrogate Jacobian ``B`` and its noise from the pooled
     runs (:func:`_surrogate`), the information and the determined directions (:func:`_information`),
     with the directions a few entries of the residual determine (:func:`_concentrated`).
@@ -1019,7 +1048,7 @@ def _local_model(prob: Problem, runs: list, theta: np.ndarray, C: np.ndarray, rh
     concentration added."""
     rho = float(np.mean(rhos))
     B, noise = _surrogate(runs, theta, prob.step, s.pool_radius, rho)
-    info, keep, pending = _information(B, noise, _scale(prob), s, prob.prior_sd)
+    info, keep, pending = _information(B, noise, _scale(prob), s, prob.prior_sd, entries)
     n_global = keep.shape[1]
     keep, B, noise = _concentrated(B, noise, _row_noise(C, prob.groups, rho), _scale(prob), keep, s, prob.prior_sd)
     if keep.shape[1] > n_global:
@@ -1078,12 +1107,22 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
 
     sizes = np.array([len(g) for g in (groups or [np.arange(len(a))])], float)
 
+    def pooled() -> tuple:
+        # the replays' noise over the centres so far: groups' variances, tr(Sigma_r^2)'s parts
+        vg = np.mean([x[0] for x in spread], axis=0)
+        parts = [np.mean([x[i] for x in spread if np.isfinite(x[i])]) if any(np.isfinite(x[i]) for x in spread)
+                 else float("nan") for i in (1, 2)]
+        return vg, float(parts[0]), float(parts[1])
+
     def floor_dof() -> tuple[float, float]:
         # the cost the noise alone gives and its degrees of freedom (noise_floor): the data's
         # noise per whitened entry, and the anchor's model noise (the mean of len(C) runs)
-        vg = np.mean([v for v, _ in spread], axis=0)
-        t2s = [t for _, t in spread if np.isfinite(t)]    # the off-diagonal tr(Sigma_r^2), pooled
-        return noise_floor(sizes, vg, float(np.mean(t2s)) if t2s else float("nan"), len(C))
+        vg, off, _ = pooled()
+        return noise_floor(sizes, vg, off, len(C))
+
+    def entries() -> float:
+        vg, off, diag = pooled()
+        return effective_entries(sizes, vg, off, diag)
 
     def floor() -> float:
         return floor_dof()[0]
@@ -1100,7 +1139,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             its[-2]["chi2"] - its[-1]["chi2"] > 0.5 * (its[-2]["chi2"] - its[-2]["floor"])
         if it >= limit + (s.moving_iter if moving else 0):
             break
-        B, noise, info, keep, pending, n_local = _local_model(prob, runs, theta, C, rhos, s)
+        B, noise, info, keep, pending, n_local = _local_model(prob, runs, theta, C, rhos, s, entries())
         if n_local and log is not None:
             log(f"  {n_local} direction(s) determined by a few entries of the residual")
         grow = _unseen(prob, keep, s.probe_growth) if probes < s.max_probes and it < limit - 1 \
@@ -1228,7 +1267,7 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
             log(f"the last centre's cost {a @ a:.1f} is significantly above the best visited, {best[1]:.1f}: "
                 f"the estimate returns there")
         theta, a, C = best[0], best[2], best[3]
-        B, noise, info, keep, pending, _ = _local_model(prob, runs, theta, C, rhos, s)
+        B, noise, info, keep, pending, _ = _local_model(prob, runs, theta, C, rhos, s, entries())
         d, _ = _solve_step(a, B, info, keep, lam, theta, prob, s, trust, want_full=True)
         returned = float(best[1])
     theta_hat = np.clip(theta + d, prob.lower, prob.upper) if converged else theta
