@@ -19,7 +19,9 @@ anchor's cost is set against
 
 and flagged far above each by :func:`ssamb.closeloop.estimate._far_above` at ``short_alpha``.
 With a right floor the truth is flagged in about that share of the anchors. Prints one line per
-anchor (``--groups``: also each group's cost per entry and replay variance) and the shares.
+anchor (``--groups``: also each group's cost per entry and replay variance), with the independent
+entries a replay's noise is worth (:func:`ssamb.closeloop.estimate.effective_entries`, which sets
+the threshold of a determined direction), and the shares.
 """
 from __future__ import annotations
 
@@ -47,7 +49,7 @@ def truth_anchors(k: int, seed: int, kind: str, anchors: int, groups: bool = Fal
     """The anchors of draw ``k``'s truth: per anchor its cost, both floors, degrees of freedom and
     flags (dicts)."""
     from ssamb.closeloop import comparison_of
-    from ssamb.closeloop.estimate import EstimateSettings, _far_above, noise_floor, replay_noise
+    from ssamb.closeloop.estimate import EstimateSettings, _far_above, effective_entries, noise_floor, replay_noise
     from ssamb.config import load_config
     from ssamb.rig import effective_truth
 
@@ -73,10 +75,12 @@ def truth_anchors(k: int, seed: int, kind: str, anchors: int, groups: bool = Fal
                 continue
             r = C.mean(axis=0)
             cost, n = float(r @ r), len(r)
-            vg, t2, _ = replay_noise(C, gs)
-            f, nu = noise_floor(np.array([len(g) for g in gs]), vg, t2, len(C))
+            vg, t2, diag = replay_noise(C, gs)
+            sizes = np.array([len(g) for g in gs])
+            f, nu = noise_floor(sizes, vg, t2, len(C))
             f_ind = n * (1.0 + float(np.mean(C.var(axis=0, ddof=1))) / len(C))
             row = {"draw": k, "kind": kind, "anchor": a, "cost": cost, "n": n, "floor": f, "dof": nu,
+                   "replay_entries": effective_entries(sizes, vg, t2, diag),
                    "floor_independent": f_ind, "far": _far_above(cost, n, f, est.short_alpha, nu),
                    "far_independent": _far_above(cost, n, f_ind, est.short_alpha)}
             if groups:
@@ -106,7 +110,8 @@ def main() -> None:
             print(f"draw {k:3d} ({r['kind']:9s}) anchor {r['anchor']}: cost {r['cost']:9.1f} (N {r['n']}); floor "
                   f"{r['floor']:7.1f}, {r['dof']:6.1f} dof: {'FAR ABOVE' if r['far'] else 'within'}; independent "
                   f"entries {r['floor_independent']:7.1f}, {r['n']} dof: "
-                  f"{'FAR ABOVE' if r['far_independent'] else 'within'}", flush=True)
+                  f"{'FAR ABOVE' if r['far_independent'] else 'within'}; a replay's noise worth "
+                  f"{r['replay_entries']:.1f} independent entries", flush=True)
             for i, (n_g, per, v) in enumerate(r.get("groups", [])):
                 print(f"    group {i:2d}: {n_g:3d} entries, cost per entry {per:7.2f}, replay variance {v:6.2f}")
     ok = [r for r in rows if not r.get("infeasible")]
