@@ -27,7 +27,8 @@ standard errors off). This module therefore never compares single evaluations:
 4. **Step.** With the prior :math:`\theta \sim N(\theta_0, \mathrm{diag}\,\sigma_p^2)`
    (:math:`\sigma_p = \infty` for parameters without one) the Gauss-Newton step minimises
    :math:`\|a + B d\|^2 + \|(\theta_k + d - \theta_0)/\sigma_p\|^2`, restricted to the directions
-   the data determine: the Jacobian's signal above its noise (``min_snr``) and the information
+   the data determine: the Jacobian's signal above its noise (``min_snr``, raised where the
+   replays' noise moves whole views together: :func:`_information`) and the information
    above ``min_information`` (along the others the estimate stays where the prior holds it,
    instead of following the surrogate's noise); shortened to the bounds and a trust region of
    ``max_step`` steps :math:`h`, which doubles after an accepted step that lowered the cost by
@@ -832,15 +833,15 @@ def _design(prob: Problem, theta: np.ndarray, k: int, s: EstimateSettings, runs:
 def _far_above(chi2: float, n: int, floor: float, alpha: float, dof: float = 0.0) -> bool:
     r"""Whether a cost ``chi2`` of ``n`` whitened entries lies beyond the upper ``alpha`` quantile of
     the noise alone, :math:`(f/\nu)\,\chi^2_\nu` with the floor :math:`f` and the noise's
-    effective degrees of freedom :math:`\nu` (``dof``; ``n`` when 0: independent entries;
-    :func:`replay_noise`) (:class:`EstimateSettings` ``short_alpha``)."""
+    effective degrees of freedom :math:`\nu` (``dof``, :func:`noise_floor`; ``n`` when 0:
+    independent entries) (:class:`EstimateSettings` ``short_alpha``)."""
     from scipy import stats
 
     nu = float(dof) if dof > 0 else float(n)
     return n > 0 and chi2 > floor / nu * float(stats.chi2.isf(alpha, nu))
 
 
-def replay_noise(C: np.ndarray, groups) -> tuple[np.ndarray, float]:
+def replay_noise(C: np.ndarray, groups) -> tuple[np.ndarray, float, float]:
     r"""What replicate runs ``C`` (``m`` x ``N``, distinct seeds, one point) say of one replay's noise:
     per group of entries the mean variance :math:`\bar v_g`, and the off-diagonal part of
     :math:`\mathrm{tr}\,\Sigma_r^2`, :math:`\sum_{i \ne j}\sigma_{ij}^2`.
