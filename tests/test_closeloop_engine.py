@@ -1657,7 +1657,6 @@ def test_noise_floor_of_independent_quiet_replays_is_the_old_one():
     assert nu < 20
 
 
-
 def test_a_shared_mode_of_the_replays_is_no_misfit():
     """Every replay (and the data, one more) carries a mode that moves all entries together, the
     data's realisation of it 2.5 standard deviations out: at the truth the cost is far above

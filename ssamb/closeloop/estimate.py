@@ -1111,9 +1111,10 @@ def map_fit(prob: Problem, settings: EstimateSettings | None = None, log: Callab
     def pooled() -> tuple:
         # the replays' noise over the centres so far: groups' variances, tr(Sigma_r^2)'s parts
         vg = np.mean([x[0] for x in spread], axis=0)
-        parts = [np.mean([x[i] for x in spread if np.isfinite(x[i])]) if any(np.isfinite(x[i]) for x in spread)
-                 else float("nan") for i in (1, 2)]
-        return vg, float(parts[0]), float(parts[1])
+        parts = np.array([x[1:] for x in spread], float)
+        ok = np.isfinite(parts[:, 0])     # both parts are NaN at a centre of fewer than three runs
+        off, diag = parts[ok].mean(axis=0) if ok.any() else (float("nan"), float("nan"))
+        return vg, float(off), float(diag)
 
     def floor_dof() -> tuple[float, float]:
         # the cost the noise alone gives and its degrees of freedom (noise_floor): the data's
