@@ -28,7 +28,7 @@ import numpy as np
 from scipy import optimize, signal
 
 __all__ = ["Frame", "make_frame", "dft", "noise_floor", "white_sigma", "find_peaks_bins", "lasts",
-           "fit_line", "offset", "welch_transfer"]
+           "fit_line", "line_drift", "offset", "welch_transfer"]
 
 
 @dataclass(frozen=True)
@@ -413,6 +413,99 @@ def fit_line(frame: Frame, segs: dict, sigmas: dict, f0_hz: float, search_bins: 
         out["chi2"][v] = float((a * a + b * b) / se ** 2) if se > 0 else float("inf")
         out["component"][v] = a * np.cos(2 * np.pi * fh * t) + b * np.sin(2 * np.pi * fh * t)
     return out
+
+
+def line_drift(frame: Frame, res: dict, line: dict, f_hz: float, min_line_chi2: float = 100.0) -> dict | None:
+    r"""The frequency error of a modelled line, read from the drift of the data's phase against
+    the model's line over the frame.
+
+    The model predicts a line :math:`P_v(t)` in view :math:`v` (a rotating unbalance at its
+    estimated speed :math:`f`: the model with the effect minus the model without it, so that an
+    excitation's own response is no part of it) and the data hold it at :math:`f + \delta`, a
+    little larger by :math:`a_v` and ahead by :math:`\varphi_v`. To first order the residual
+    (data minus model) is then
+
+    .. math:: R_v(t) = a_v P_v(t) + \left(\varphi_v + 2\pi\delta\,(t - t_c)\right) Q_v(t) + e_v(t),
+              \qquad Q_v(t) = P_v\!\left(t + \tfrac{1}{4f}\right),
+
+    :math:`Q_v` the model's line a quarter cycle ahead (its quadrature, the course of its
+    envelope kept), :math:`t_c` the frame's centre. Each view's least squares in
+    :math:`(a_v, \varphi_v, 2\pi\delta_v)` -- signals and regressors alike with a periodic
+    frame's synchronous part removed (:func:`_periodic_project`: the model's misfit of the
+    excitation goes, and what the removal does to the line is carried by the regressors) --
+    gives :math:`\delta_v` with the variance of white noise at the residual's level near the
+    line (:func:`_local_sigma`). A view whose model line does not stand above its own replay
+    noise by ``min_line_chi2`` (:math:`|A_v|^2 / \mathrm{var} A_v` of its phasor; a phase
+    error of 0.1 rad at 100) is left out: regressors made of noise would pull its estimate to
+    zero. The views are pooled with weights :math:`1/\sigma_v^2` and the pooled error is the
+    same weighted mean of their errors, the error of views whose noise is one (the views of one
+    loop -- position, current, controller output -- carry the same noise near the line), an
+    upper bound for any correlation between them: a generalised least squares with their
+    correlation estimated near one would weigh their small differences as information.
+
+    Why not the line's frequency in the residual of a model without the line
+    (:func:`fit_line`): the model's line is not a stationary sinusoid where the loop's response
+    to the force starts or settles (the current loops' and the magnetics' slow states), and the
+    data share that course; the regressors built from the model's own line carry it, where a
+    sinusoid fitted to it reads it as a frequency. And the features the cost compares hold one
+    phasor per line over a part, which a speed error leaves unchanged to first order (the phase
+    drifts symmetrically about the part's centre), so that the fitting part's cost cannot find
+    the speed, while the held-out part after it sees the whole drift.
+
+    Parameters
+    ----------
+    frame : Frame
+        The segment read.
+    res, line : dict
+        Per view, the residual and the model's line over the whole record (the quadrature reads
+        the line a quarter cycle past the segment's end).
+    f_hz : float
+        The modelled line's frequency.
+    min_line_chi2 : float
+        Least strength of a view's model line (above).
+
+    Returns
+    -------
+    dict or None
+        ``delta_hz`` and ``se_hz`` pooled, ``views`` (per view ``delta_hz``, ``se_hz``); None
+        when no view holds the line.
+    """
+    seg = slice(frame.i0, frame.i0 + frame.n)
+    t_all = np.arange(len(next(iter(line.values())))) / frame.fs_hz
+    t = frame.t_s
+    T = t - (frame.i0 + frame.n / 2) / frame.fs_hz
+    k0 = f_hz / frame.df_hz
+    usable = ~frame.grid_mask if frame.periodic else None
+    ones = np.ones(frame.n)
+    D = np.column_stack([np.cos(2 * np.pi * f_hz * t), np.sin(2 * np.pi * f_hz * t)])
+    D = np.column_stack([_periodic_project(frame, x) for x in D.T])
+    Dg = np.linalg.inv(D.T @ D)
+    per = {}
+    for v in res:
+        if v not in line:
+            continue
+        P = np.asarray(line[v], float)
+        p_seg = _periodic_project(frame, P[seg])
+        ab = Dg @ (D.T @ p_seg)
+        s_p = _local_sigma(p_seg - D @ ab, k0, ones, usable=usable)
+        if not float(ab @ np.linalg.solve(Dg, ab)) > min_line_chi2 * s_p ** 2:
+            continue
+        Q = np.interp(t + 0.25 / f_hz, t_all, P)
+        X = np.column_stack([p_seg, _periodic_project(frame, Q), _periodic_project(frame, T * Q)])
+        G = X.T @ X
+        y = _periodic_project(frame, np.asarray(res[v], float)[seg])
+        beta = np.linalg.solve(G, X.T @ y)
+        s_r = _local_sigma(y - X @ beta, k0, ones, usable=usable)
+        se = s_r * math.sqrt(np.linalg.inv(G)[2, 2]) / (2 * np.pi)
+        if se > 0 and math.isfinite(se):
+            per[v] = {"delta_hz": float(beta[2] / (2 * np.pi)), "se_hz": float(se)}
+    if not per:
+        return None
+    d = np.array([x["delta_hz"] for x in per.values()])
+    w = 1.0 / np.array([x["se_hz"] for x in per.values()]) ** 2
+    w = w / w.sum()
+    return {"delta_hz": float(w @ d), "se_hz": float(w @ np.array([x["se_hz"] for x in per.values()])),
+            "views": per}
 
 
 def _line_weights(frame: Frame, proj: dict, names: list, phasors, fh: float, sigmas: dict,

@@ -217,13 +217,18 @@ def neighbours(m: EffectModel, theta, t_centre_s: float, steps: float | list) ->
 
 
 def report(m: EffectModel, theta, se, significant) -> list[dict]:
+    r"""The unbalance in the library's terms, with standard errors. The phase is the force's at
+    the record's start, :math:`t = 0`, while the data pin it at ``fixed["phase_t_s"]`` (the
+    fitting part's centre, where the search's speed refinement holds it): a speed error
+    :math:`\sigma_f` moves it by :math:`2\pi t\,\sigma_f` there, which its error includes."""
     a, b = theta[:2]
     f_hz = float(m.fixed["speed_hz"])
     me = math.hypot(a, b)
     w = 2 * math.pi * f_hz
     se_me = float(math.sqrt(0.5 * (se[0] ** 2 + se[1] ** 2)))
+    se_f = float(m.fixed.get("speed_se_hz", 0.0))
+    se_ph = math.hypot(se_me / max(me, 1e-300), 2 * math.pi * float(m.fixed.get("phase_t_s", 0.0)) * se_f)
     return [{"name": NAME, "params": {"speed_hz": float(f_hz), "mass_ecc_kgm": float(me),
                                       "phase_rad": float(math.atan2(b, a))},
-             "uncertainty": {"speed_hz": float(m.fixed.get("speed_se_hz", 0.0)), "mass_ecc_kgm": se_me,
-                             "phase_rad": float(se_me / max(me, 1e-300))},
+             "uncertainty": {"speed_hz": se_f, "mass_ecc_kgm": se_me, "phase_rad": float(se_ph)},
              "force_n": float(me * w * w)}]
