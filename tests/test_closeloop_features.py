@@ -671,3 +671,21 @@ def test_the_speed_search_takes_the_vertex_of_a_parabola_through_its_costs(centr
     v = _parabola_vertex(tried)
     assert v == (pytest.approx(expected, abs=1e-3) if expected is not None else None)
     assert _parabola_vertex({k: (100.0 - k * k, None) for k in (0.0,) + SPEED_STEPS}) is None
+
+
+def test_an_unbalances_phase_error_carries_its_speed_error_to_the_records_start():
+    """The data pin the force's phase at the fitting part's centre t; the phase is reported at
+    the record's start, so a speed error sigma_f adds 2 pi t sigma_f to it (0.3 s, 2 mHz: 3.77
+    mrad beside the amplitude's 20 mrad), and nothing where no centre is named."""
+    from ssamb.sim.effects import unbalance
+
+    m = unbalance.model({"speed_hz": 50.0, "speed_se_hz": 0.002}, None, _WHIRL)
+    theta, se = np.array([3e-6, 4e-6]), np.array([1e-7, 1e-7])
+    assert unbalance.report(m, theta, se, True)[0]["uncertainty"]["phase_rad"] == pytest.approx(0.02)
+    m.fixed["phase_t_s"] = 0.3
+    got = unbalance.report(m, theta, se, True)[0]["uncertainty"]["phase_rad"]
+    assert got == pytest.approx(math.hypot(0.02, 2 * math.pi * 0.3 * 0.002))
+    # moving the speed by one error moves the phase at t = 0 by that much, the phase at t unchanged
+    (m2, th2), = unbalance.neighbours(m, theta, 0.3, [1.0])
+    d0 = math.remainder(m2.build(th2)[0]["phase_rad"] - math.atan2(4e-6, 3e-6), 2 * math.pi)
+    assert abs(d0) == pytest.approx(2 * math.pi * 0.3 * 0.002)
