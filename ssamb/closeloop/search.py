@@ -59,7 +59,7 @@ from .fit import (Base, Candidate, _one_replay_costs, _one_replay_margin, _prior
 from .models import EffectModel, basin_points, restart
 from .residual import compute_features
 from .signatures import claim_stat, evidence_all, rank
-from .spectra import line_drift
+from .speeds import refine_speeds
 
 __all__ = ["SearchResult", "search", "consistency", "size_statistic", "joint_start"]
 
@@ -1122,156 +1122,6 @@ def _resolve_aliases(cmp: Comparison, out: SearchResult, settings, progress: boo
                                f"{dict(zip(m.params, np.round(a['se'], 9).tolist()))}")
 
 
-def _refine_speeds(cmp: Comparison, out: SearchResult, settings, progress: bool) -> None:
-    r"""An accepted effect whose frequency is measured, not fitted (the unbalance's spin speed:
-    the line's least-squares frequency in the residual of the model without it), estimated again
-    in the final model, along its family of neighbours (``neighbours(model, theta, t_centre_s,
-    steps)`` of the effect's module: the speed moved in units of its standard error, the
-    force's phase kept at the fitting part's centre), twice:
-
-    1. by the drift of the data's phase against the final model's own line over the fitting part
-       (:func:`_speed_by_drift`), which a start-up course of the line shared by model and data
-       does not bias;
-    2. by the fitting part's whole cost along the family (:func:`_speed_by_cost`), which sees a
-       speed error where it drifts the phase far within the part.
-
-    Each moves the speed only when the data say the current one is wrong (:data:`SPEED_DRIFT_Z`;
-    the held-out improvement test's level on the fitting part). The held-out part comes after
-    the fitting part and sees every bit of a speed error as a phase drift. ``fit.speed_refined``
-    records the line's speed (``from_hz``), the final one (``to_hz``), and what moved it
-    (``drift_se_hz`` and ``drift_z``; ``z_fit``)."""
-    t_c = (cmp.fit.frame.i0 + cmp.fit.frame.n / 2) / cmp.record.fs_hz
-    z_crit = float(stats.norm.isf(settings.alpha_accept))
-    for a in out.accepted:
-        fam = getattr(cmp.device.effects.get(a["model"].name), "neighbours", None)
-        if fam is None or "speed_hz" not in a["model"].fixed:
-            continue
-        f_line = float(a["model"].fixed["speed_hz"])
-        moved = {**_speed_by_drift(cmp, out, a, fam, t_c, progress),
-                 **_speed_by_cost(cmp, out, a, fam, t_c, z_crit, progress)}
-        if moved:
-            a["speed_refined"] = {"from_hz": f_line, "to_hz": float(a["model"].fixed["speed_hz"]), **moved}
-
-
-#: the drift over its standard error beyond which :func:`_speed_by_drift` moves a line's speed
-#: (a two-sided 5 % test of the measured speed against the model's own line)
-SPEED_DRIFT_Z = 2.0
-#: the most steps :func:`_speed_by_drift` takes along the drift
-SPEED_ITERATIONS = 3
-#: the points :func:`_speed_by_cost` scores, in standard errors of the speed
-SPEED_STEPS = (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)
-
-
-def _take(cmp: Comparison, out: SearchResult, a: dict, m, th, eff, pred, t_c: float) -> None:
-    """Make ``(m, th)`` the accepted effect ``a``'s model in the final model (its phase pinned at
-    ``t_c``; the effects ``eff`` and their prediction ``pred``)."""
-    m.fixed["phase_t_s"] = t_c
-    a["model"], a["theta"] = m, th
-    out.effects, out.final = eff, pred
-
-
-def _neighbour(cmp: Comparison, out: SearchResult, a: dict, fam, t_c: float, step: float) -> tuple | None:
-    """The final model with ``a`` moved ``step`` of its speed's standard error along ``fam``:
-    ``(model, theta, effects, prediction)``, or None (no such speed, or the ball dropped)."""
-    got = fam(a["model"], a["theta"], t_c, [step])
-    if not got:                                 # no such speed (at or below zero)
-        return None
-    m2, th2 = got[0]
-    eff = [e for b in out.accepted for e in (m2.build(th2) if b is a else b["model"].build(b["theta"]))]
-    pred = cmp.prediction(out.overrides, eff)
-    return None if pred.get("delevitated_share", 0.0) > 0.5 else (m2, th2, eff, pred)
-
-
-def _speed_by_drift(cmp: Comparison, out: SearchResult, a: dict, fam, t_c: float, progress: bool) -> dict:
-    r"""The speed of ``a`` moved by the drift of the data's phase against the final model's line
-    (:func:`ssamb.closeloop.spectra.line_drift`; the line: the final model less the same model
-    without ``a``) when that drift exceeds :data:`SPEED_DRIFT_Z` of its standard error, then
-    until what is left is below a quarter of it (at most :data:`SPEED_ITERATIONS` steps). The
-    speed's reported standard error becomes the larger of the line's and the drift's, moved or
-    not. Returns ``{"drift_se_hz", "drift_z"}`` when it moved, else ``{}``."""
-    dev = cmp.device
-    meas = dev.views(cmp.record.channels)
-    without = dev.views(cmp.prediction(out.overrides, [e for b in out.accepted if b is not a
-                                                       for e in b["model"].build(b["theta"])]))
-
-    def drift():
-        pv = dev.views(out.final)
-        return line_drift(cmp.fit.frame, {v: meas[v] - pv[v] for v in dev.view_names},
-                          {v: pv[v] - without[v] for v in dev.view_names}, float(a["model"].fixed["speed_hz"]))
-    dr = drift()
-    if dr is None:
-        return {}
-    se_line = float(a["model"].fixed.get("speed_se_hz", 0.0))
-    z0, f0 = dr["delta_hz"] / dr["se_hz"], float(a["model"].fixed["speed_hz"])
-    steps = 0
-    if abs(z0) > SPEED_DRIFT_Z and se_line > 0:
-        while steps < SPEED_ITERATIONS and dr is not None and abs(dr["delta_hz"]) >= 0.25 * dr["se_hz"]:
-            got = _neighbour(cmp, out, a, fam, t_c, dr["delta_hz"] / float(a["model"].fixed["speed_se_hz"]))
-            if got is None:
-                break
-            _take(cmp, out, a, *got, t_c)
-            steps += 1
-            dr = drift()
-    se_d = float(dr["se_hz"]) if dr is not None else 0.0
-    a["model"].fixed["speed_se_hz"] = max(se_line, se_d)
-    a["model"].fixed["phase_t_s"] = t_c
-    if not steps:
-        return {}
-    f1 = float(a["model"].fixed["speed_hz"])
-    _log(progress, f"final model: {a['model'].name} at {f1:.6g} Hz instead of {f0:.6g} Hz: the data's phase drifts "
-                   f"against the model's line by {f1 - f0:+.3g} Hz over the fitting part (se {se_d:.2g} Hz)")
-    return {"drift_se_hz": se_d, "drift_z": float(z0)}
-
-
-def _speed_by_cost(cmp: Comparison, out: SearchResult, a: dict, fam, t_c: float, z_crit: float,
-                   progress: bool) -> dict:
-    r"""The speed of ``a`` along its family scored by the fitting part's whole cost at
-    :data:`SPEED_STEPS`, a parabola fitted to the costs (:func:`_parabola_vertex`: all of them,
-    so that no single replayed cost decides), and its vertex, when it is a minimum within them,
-    replayed; taken when it improves the fitting part significantly
-    (:func:`ssamb.closeloop.fit.improvement_z` above ``z_crit``): a replay's noise moves with the
-    speed, and a cost lower by less is that noise. Returns ``{"z_fit"}`` when taken, else ``{}``."""
-    r0 = cmp.residual(cmp.fit, out.final)
-    tried = {0.0: (float(r0 @ r0), None)}
-
-    def score(steps):
-        for k in steps:
-            got = _neighbour(cmp, out, a, fam, t_c, k)
-            if got is not None:
-                r = cmp.residual(cmp.fit, got[3])
-                tried[float(k)] = (float(r @ r), got)
-    score(list(SPEED_STEPS))
-    vertex = _parabola_vertex(tried)
-    if vertex is None or abs(vertex) < 1e-3:
-        return {}
-    score([vertex])
-    if vertex not in tried or tried[vertex][0] >= tried[0.0][0]:
-        return {}
-    m2, th2, eff, pred = tried[vertex][1]
-    z = improvement_z(cmp, cmp.fit, Base(out.overrides, out.effects, out.final), pred, out.overrides, eff)
-    if not z > z_crit:
-        return {}
-    f0, f1 = float(a["model"].fixed["speed_hz"]), float(m2.fixed["speed_hz"])
-    m2.fixed["speed_se_hz"] = float(a["model"].fixed["speed_se_hz"])
-    _take(cmp, out, a, m2, th2, eff, pred, t_c)
-    _log(progress, f"final model: {a['model'].name} at {f1:.6g} Hz instead of {f0:.6g} Hz: the fitting part's cost "
-                   f"along the speed is least there (z {z:.1f})")
-    return {"z_fit": float(z)}
-
-
-def _parabola_vertex(tried: dict) -> float | None:
-    """The vertex of the parabola fitted by least squares to every cost of ``tried`` (``step ->
-    (cost, ...)``), when it is a minimum within the steps tried; else None."""
-    ks = np.array(sorted(tried))
-    if len(ks) < 3:
-        return None
-    c2, c1, _ = np.polyfit(ks, [tried[k][0] for k in ks], 2)
-    if c2 <= 0:
-        return None
-    v = float(-c1 / (2 * c2))
-    return round(v, 3) if ks[0] < v < ks[-1] else None
-
-
 def _alias_spread(cmp: Comparison, out: SearchResult, a: dict, z_crit: float) -> tuple:
     r"""The spread of an accepted effect over the points of its comb
     (:attr:`ssamb.device.EffectModel.comb`) that the record does not reject.
@@ -1388,7 +1238,9 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         out.overrides, out.effects = ov, eff
         out.final = cmp.prediction(ov, eff)
         _resolve_aliases(cmp, out, settings, progress)
-        _refine_speeds(cmp, out, settings, progress)
+        refine_speeds(cmp, out, settings, progress)
+        if any("speed_refined" in a for a in out.accepted):
+            fit, theta_cal, models, cuts, blocks = _joint_at_speeds(cmp, cal, out, settings, est, progress, theta_cal)
         out.joint["point"] = final_point(specs, theta_cal, fit.cov_misfit,
                                          [b for b in blocks if any(b[0] is a for a in out.accepted)])
         ok, fails = consistency(cmp, Base(out.overrides, out.effects, out.final), settings)
@@ -1413,6 +1265,29 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     out.misfit = misfit(cmp, Base(out.overrides, out.effects, out.final))
     out.optimum = optimum_of(out.joint.get("fit"), EstimateSettings(**settings.estimate).tol)
     return out
+
+
+def _joint_at_speeds(cmp: Comparison, cal: Calibration, out: SearchResult, settings, est, progress: bool,
+                     start: np.ndarray) -> tuple:
+    """The joint refit again, once :func:`ssamb.closeloop.speeds.refine_speeds` has moved an
+    effect's speed: the calibrated parameters and the other effects were fitted beside it at the
+    line's speed and absorbed part of its error. The speeds are then refined once more from the
+    new refit (their sizes solved again); ``speed_refined`` keeps the line's speed as
+    ``from_hz``. Returns ``(fit, theta_cal, models, cuts, blocks)``."""
+    _log(progress, "joint refit again at the speeds found")
+    first = {id(a): a.pop("speed_refined") for a in out.accepted if "speed_refined" in a}
+    fit, theta_cal, ov, eff, models, cuts, ident = _joint(cmp, cal, out.accepted, settings, est, progress, start)
+    blocks = list(zip(out.accepted, models, cuts[:-1], cuts[1:]))
+    eff = _drop_null_effects(out, fit, models, cuts, settings.alpha_accept, progress)
+    out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
+    out.overrides, out.effects = ov, eff
+    out.final = cmp.prediction(ov, eff)
+    refine_speeds(cmp, out, settings, progress)
+    for a in out.accepted:
+        if id(a) in first:
+            a["speed_refined"] = {**first[id(a)], **a.get("speed_refined", {}), "from_hz": first[id(a)]["from_hz"]}
+            a["speed_refined"]["to_hz"] = float(a["model"].fixed["speed_hz"])
+    return fit, theta_cal, models, cuts, blocks
 
 
 def final_point(specs: list, theta_cal: np.ndarray, cov: np.ndarray, blocks: list) -> tuple:

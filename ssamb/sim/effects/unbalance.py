@@ -22,10 +22,9 @@ same part (:func:`ssamb.closeloop.spectra.fit_line`, each view weighted by its n
 line, and tapered where the excitation is not periodic so that the model's misfit of it does
 not pull the frequency) comes within 1.4 times the Cramer-Rao bound in white noise (1.7 tapered),
 and its sandwich standard error says how far it can be trusted in coloured noise. Once the
-model is final, the speed is searched along :func:`neighbours` (the force's phase held at the
-fitting part's centre) by the fitting part's whole cost, which also reads the drift within the
-part: the vertex of a parabola through those costs replaces the measured speed where it costs
-less.
+model is final, the speed is estimated again along :func:`neighbours` (:mod:`ssamb.closeloop.speeds`:
+the drift of the data's phase against the model's line, and the fitting part's whole cost with
+the size solved at each speed tried), and the size's error includes the speed's.
 """
 from __future__ import annotations
 
@@ -225,9 +224,10 @@ def report(m: EffectModel, theta, se, significant) -> list[dict]:
     f_hz = float(m.fixed["speed_hz"])
     me = math.hypot(a, b)
     w = 2 * math.pi * f_hz
-    se_me = float(math.sqrt(0.5 * (se[0] ** 2 + se[1] ** 2)))
+    se_at_speed = float(math.sqrt(0.5 * (se[0] ** 2 + se[1] ** 2)))
+    se_me = float(math.hypot(se_at_speed, float(m.fixed.get("size_se_speed", 0.0))))
     se_f = float(m.fixed.get("speed_se_hz", 0.0))
-    se_ph = math.hypot(se_me / max(me, 1e-300), 2 * math.pi * float(m.fixed.get("phase_t_s", 0.0)) * se_f)
+    se_ph = math.hypot(se_at_speed / max(me, 1e-300), 2 * math.pi * float(m.fixed.get("phase_t_s", 0.0)) * se_f)
     return [{"name": NAME, "params": {"speed_hz": float(f_hz), "mass_ecc_kgm": float(me),
                                       "phase_rad": float(math.atan2(b, a))},
              "uncertainty": {"speed_hz": se_f, "mass_ecc_kgm": se_me, "phase_rad": float(se_ph)},
