@@ -389,6 +389,7 @@ def _try(cmp, base, names, ev, rec, settings, est, seed0, ft, measured_contact, 
         _judge_nested(cmp, base, cand, cand_est, seed0, settings,
                       (lambda m: _log(progress, f"    {'+'.join(names)} " + m)) if progress else None)
     th = dict(zip(cand.model.params, cand.fit.theta[cand.n_free:].tolist())) if cand.fit else {}
+    th.update({k: v for k, v in cand.model.fixed.items() if k.endswith("_hz")})     # a measured speed
     sc = cand.score
     _log(progress, f"  {'+'.join(names)}: {th} -> held-out z {sc.get('z', float('nan')):.1f} "
                    f"({sc.get('group')} {sc.get('z_group', float('nan')):.1f}), explained "
