@@ -1232,12 +1232,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     if out.accepted or cal.conflicts:
         start = joint_start(cal, base, free, spare, bool(out.accepted))
         joint = _joint(cmp, cal, out.accepted, settings, est, progress, start)
-        fit, theta_cal, ov, eff, models, cuts, ident = _weigh_weak(cmp, cal, out, settings, est, progress, start, joint)
-        blocks = list(zip(out.accepted, models, cuts[:-1], cuts[1:]))
-        eff = _drop_null_effects(out, fit, models, cuts, settings.alpha_accept, progress)
-        out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
-        out.overrides, out.effects = ov, eff
-        out.final = cmp.prediction(ov, eff)
+        joint = _weigh_weak(cmp, cal, out, settings, est, progress, start, joint)
+        fit, theta_cal, models, cuts, blocks = _adopt(cmp, out, joint, settings, progress)
         _resolve_aliases(cmp, out, settings, progress)
         refine_speeds(cmp, out, settings, progress)
         if any("speed_refined" in a for a in out.accepted):
@@ -1268,6 +1264,19 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
     return out
 
 
+def _adopt(cmp: Comparison, out: SearchResult, joint: tuple, settings, progress: bool) -> tuple:
+    """Make a joint refit (:func:`_joint`'s tuple) the final model of ``out``: the accepted
+    effects whose size it keeps (:func:`_drop_null_effects`), its overrides and prediction.
+    Returns ``(fit, theta_cal, models, cuts, blocks)``, ``blocks`` ``(accepted, model, lo, hi)``."""
+    fit, theta_cal, ov, eff, models, cuts, ident = joint
+    blocks = list(zip(out.accepted, models, cuts[:-1], cuts[1:]))
+    eff = _drop_null_effects(out, fit, models, cuts, settings.alpha_accept, progress)
+    out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
+    out.overrides, out.effects = ov, eff
+    out.final = cmp.prediction(ov, eff)
+    return fit, theta_cal, models, cuts, blocks
+
+
 def _joint_at_speeds(cmp: Comparison, cal: Calibration, out: SearchResult, settings, est, progress: bool,
                      start: np.ndarray) -> tuple:
     """The joint refit again, once :func:`ssamb.closeloop.speeds.refine_speeds` has moved an
@@ -1277,12 +1286,8 @@ def _joint_at_speeds(cmp: Comparison, cal: Calibration, out: SearchResult, setti
     ``from_hz``. Returns ``(fit, theta_cal, models, cuts, blocks)``."""
     _log(progress, "joint refit again at the speeds found")
     first = {id(a): a.pop("speed_refined") for a in out.accepted if "speed_refined" in a}
-    fit, theta_cal, ov, eff, models, cuts, ident = _joint(cmp, cal, out.accepted, settings, est, progress, start)
-    blocks = list(zip(out.accepted, models, cuts[:-1], cuts[1:]))
-    eff = _drop_null_effects(out, fit, models, cuts, settings.alpha_accept, progress)
-    out.joint = {"fit": fit, "ident": ident, "theta_cal": theta_cal}
-    out.overrides, out.effects = ov, eff
-    out.final = cmp.prediction(ov, eff)
+    fit, theta_cal, models, cuts, blocks = _adopt(cmp, out, _joint(cmp, cal, out.accepted, settings, est, progress,
+                                                                  start), settings, progress)
     refine_speeds(cmp, out, settings, progress)
     for a in out.accepted:
         if id(a) in first:

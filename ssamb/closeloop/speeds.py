@@ -156,14 +156,15 @@ def profile_point(cmp: Comparison, out, a: dict, m, theta, without: dict) -> dic
     through a loop linear at the response's amplitude), so the model's channels are
     :math:`x(c) = x_0 + \sum_i c_i (x_i - x_0)/s`, with :math:`x_0` the model without the
     effect (``without``) and :math:`x_i` a replay with size parameter :math:`i` alone at
-    :math:`s = \lVert c_{\mathrm{size}}\rVert` (one replay per size parameter). With the
+    :math:`s = \lVert c_{\mathrm{size}}\rVert` (the largest finite-difference step where that is
+    zero; one replay per size parameter). With the
     whitened residuals :math:`r_0` of :math:`x_0` and :math:`r_i` of :math:`x_i`, the solution
     is :math:`c = -s\,J^+ r_0`, :math:`J = [r_i - r_0]`; ``cost`` is :math:`\lVert r\rVert^2`
     of the channels :math:`x(c)` so made (their features computed as any replay's), ``size``
     :math:`\lVert c\rVert`."""
     idx = [list(m.params).index(p) for p in (m.size_params or m.params)]
     th = np.asarray(theta, float)
-    s = float(np.linalg.norm(th[idx])) or 1.0
+    s = float(np.linalg.norm(th[idx])) or float(np.max(np.asarray(m.step, float)[idx]))
     basis = []
     for i in idx:
         ti = th.copy()
