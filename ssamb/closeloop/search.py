@@ -1254,8 +1254,8 @@ def search(cmp: Comparison, specs: list, settings, progress: bool = False) -> Se
         if cal.fit is not None:
             out.joint["point"] = final_point(specs, cal.theta, cal.fit.cov_misfit, [])
     if settings.average_alternatives:
-        ident = averaged_errors(ident, specs, out.joint["theta_cal"], out.rounds, settings.identifiable_ratio)
-        out.joint["ident"] = ident
+        out.joint["ident"] = averaged_errors(out.joint["ident"], specs, out.joint["theta_cal"], out.rounds,
+                                             settings.identifiable_ratio)
     for a in out.accepted:
         sig = (np.abs(a["theta"]) > 3 * a["se"]) & (np.abs(a["theta"]) > 1e-3 * a["model"].step)
         a["entries"] = cmp.device.report_entries(a["model"], a["theta"], a["se"], sig)
