@@ -6,9 +6,9 @@ it (the effect module's ``model``): its size parameters are fitted, its speed is
 fitting part compares one phasor per line, in which a speed error and a phase error are nearly one
 direction. The held-out part comes after the fitting part and sees every bit of a speed error as
 a phase drift, and a size fitted at a wrong speed is wrong with it: where the line lies within
-the fitting part's resolution of an excited line, the phasor of the one holds the other, and the
-size the joint refit finds at a speed off by a fraction of the resolution was 27 % low with a
-standard error of 3.4 %. :func:`refine_speeds` therefore estimates the speed again along the
+the fitting part's resolution of an excited line, the phasor of the one holds the other, and a
+fraction of the resolution in speed moves the size by many of its errors at that speed.
+:func:`refine_speeds` therefore estimates the speed again along the
 effect's family of neighbours (``neighbours(model, theta, t_centre_s, steps)`` of the effect's
 module: the speed moved in units of its standard error):
 
